@@ -1,0 +1,246 @@
+"""MJCF for the RotorS fleet, the MuJoCo model, and its MJX copy.
+
+Each vehicle is one free body carrying the vehicle's mass and diagonal inertia
+(:mod:`jaxplan.vehicles`, shared/ROBOTS.md) at its origin, and one site ``actuation``
+at that origin where four motor actuators act (the mujoco_menagerie crazyflie pattern):
+
+    ctrl[4 i + 0]  thrust along body z, N          gear [0 0 1 0 0 0]
+    ctrl[4 i + 1]  moment about body x, N m        gear [0 0 0 1 0 0]
+    ctrl[4 i + 2]  moment about body y, N m        gear [0 0 0 0 1 0]
+    ctrl[4 i + 3]  moment about body z, N m        gear [0 0 0 0 0 1]
+
+The controls are unlimited (``ctrllimited="false"``): the rotor-speed saturation
+belongs to the controller (:func:`jaxplan.sim.se3.allocate`), which hands the thrust
+and moments of the CLAMPED rotor speeds to these actuators.  The rotor geoms are for
+pictures only: every geom has ``contype = conaffinity = 0``, so nothing ever collides
+(separation is measured, not collided), no contact is ever generated, and the
+constraint solver has nothing to do.  There is a ground plane (also non-colliding) for
+pictures.  No air: density and viscosity are 0, so the only forces are gravity
+(9.81 m/s^2, as in RotorS) and the actuators.
+
+Integrator.  ``integrator="Euler"`` (the default; MuJoCo's semi-implicit Euler: the
+velocity is updated first, the position with the new velocity; without joint damping
+it is plain explicit symplectic Euler) or ``"RK4"``.  Both run in MJX and in the C
+engine.  Measured (tests/test_sim_model.py; 3 vehicles, 500 Hz, 2 s of sinusoidal
+thrust and moments, float64): max |qpos_MJX - qpos_C| is 7e-15 with Euler and 6e-8
+with RK4 (MJX's RK4 is not bit-compatible with C's); with the controller in the loop
+(Euler) 1e-15.  Euler is the default because MJX and C agree to rounding, and it costs
+one dynamics evaluation per step instead of four (MJX: ~5x faster per step here).  Its
+own discretisation error in that open-loop test is 2.2 mm after 2 s against RK4 at
+10 kHz (first order: 1.1 mm at 1 kHz); under feedback it is far below the controller's
+tracking error.  RK4 at 500 Hz is accurate to 2e-12 m there: pick it for accuracy
+studies with the C engine.
+
+Free-joint conventions (checked in the tests): qpos[7 i : 7 i + 7] = position (world,
+m) and quaternion (w, x, y, z), qvel[6 i : 6 i + 3] = linear velocity in the WORLD
+frame, qvel[6 i + 3 : 6 i + 6] = angular velocity in the BODY frame.  This is what
+:class:`jaxplan.sim.se3.VehicleState` expects, so :func:`fleet_state` only reshapes.
+
+Inertia: the Firefly's and Neo 11's RotorS inertias violate A + B >= C, which MuJoCo's
+compiler rejects; the XML carries the nearest compilable values and
+:func:`fleet_model` writes the table's exact values into the compiled model (see
+there).  Build models with :func:`fleet_model`, not from the XML string alone.
+
+MJX: ``mjx.put_model`` keeps float64 when JAX x64 is enabled (importing jaxplan does
+that); :func:`to_mjx` checks it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from jaxplan.sim.se3 import VehicleState
+from jaxplan.vehicles import GRAVITY, Vehicle, get_vehicle
+
+INTEGRATORS = ("Euler", "RK4")
+N_CONTROLS = 4  # per vehicle: thrust, moment x, moment y, moment z
+
+_RGBA = {"hummingbird": "0.2 0.4 0.9 1", "firefly": "0.9 0.5 0.1 1", "neo11": "0.3 0.7 0.3 1"}
+
+
+def _f(x: float) -> str:
+    return repr(float(x))
+
+
+def _compilable_inertia(inertia) -> tuple[float, float, float]:
+    """The nearest diagonal inertia MuJoCo's compiler accepts (A + B >= C for all axes).
+
+    Each principal moment is lowered, if needed, to the sum of the other two.  Only
+    the XML string carries this; :func:`fleet_model` restores the table's values.
+    """
+    ix, iy, iz = (float(c) for c in inertia)
+    return min(ix, iy + iz), min(iy, ix + iz), min(iz, ix + iy)
+
+
+def _vehicle_body(vehicle: Vehicle, prefix: str, pos, yaw: float) -> str:
+    """<body> element of one vehicle (free joint, inertial, site, picture geoms)."""
+    px, py, pz = (float(c) for c in pos)
+    ix, iy, iz = _compilable_inertia(vehicle.inertia)
+    l, rr = vehicle.arm_length, vehicle.rotor_radius
+    rgba = _RGBA.get(vehicle.name, "0.5 0.5 0.5 1")
+    quat = f"{_f(math.cos(yaw / 2))} 0 0 {_f(math.sin(yaw / 2))}"
+    nocol = 'contype="0" conaffinity="0" group="1"'
+    geoms = [f'<geom name="{prefix}core" type="box" size="0.06 0.06 0.025" rgba="{rgba}" {nocol}/>']
+    rotors = zip(vehicle.rotor_angles_deg, vehicle.rotor_directions, strict=True)
+    for k, (ang, d) in enumerate(rotors):
+        th = math.radians(ang)
+        x, y = l * math.cos(th), l * math.sin(th)
+        geoms.append(f'<geom name="{prefix}arm{k}" type="capsule" size="0.008" '
+                     f'fromto="0 0 0 {_f(x)} {_f(y)} 0" rgba="0.2 0.2 0.2 1" {nocol}/>')
+        col = "0.1 0.1 0.1 0.5" if d > 0 else "0.8 0.1 0.1 0.5"
+        geoms.append(f'<geom name="{prefix}rotor{k}" type="cylinder" size="{_f(rr)} 0.004" '
+                     f'pos="{_f(x)} {_f(y)} 0.02" rgba="{col}" {nocol}/>')
+    body = "\n      ".join(geoms)
+    return f"""
+    <body name="{prefix}body" pos="{_f(px)} {_f(py)} {_f(pz)}" quat="{quat}">
+      <freejoint name="{prefix}joint"/>
+      <inertial pos="0 0 0" mass="{_f(vehicle.mass)}" diaginertia="{_f(ix)} {_f(iy)} {_f(iz)}"/>
+      <site name="{prefix}actuation" pos="0 0 0"/>
+      {body}
+    </body>"""
+
+
+def _vehicle_actuators(prefix: str) -> str:
+    site = f'site="{prefix}actuation" ctrllimited="false"'
+    return "\n".join([
+        f'    <motor name="{prefix}thrust" {site} gear="0 0 1 0 0 0"/>',
+        f'    <motor name="{prefix}mx" {site} gear="0 0 0 1 0 0"/>',
+        f'    <motor name="{prefix}my" {site} gear="0 0 0 0 1 0"/>',
+        f'    <motor name="{prefix}mz" {site} gear="0 0 0 0 0 1"/>',
+    ])
+
+
+def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0.002,
+              integrator: str = "Euler") -> str:
+    """MJCF of a (heterogeneous) fleet: one non-colliding free body per vehicle.
+
+    Args:
+        names: M vehicle names ("hummingbird" | "firefly" | "neo11"), any mix.
+        positions: (M, 3) initial positions, m (world; z up).
+        yaws: (M,) initial yaw angles, rad, or None (zeros).
+        timestep: physics step, s (0.002 = 500 Hz).
+        integrator: "Euler" (MuJoCo semi-implicit Euler) or "RK4".
+    Returns:
+        The MJCF string.  Vehicle i is body ``r{i}_body`` with joint ``r{i}_joint``,
+        site ``r{i}_actuation`` and actuators ``r{i}_thrust, r{i}_mx, r{i}_my, r{i}_mz``
+        (ctrl[4 i : 4 i + 4] = thrust N, body moments N m).
+    """
+    vehicles = [get_vehicle(n) for n in names]
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if pos.shape[0] != len(vehicles):
+        raise ValueError(f"{len(vehicles)} vehicle names but {pos.shape[0]} positions")
+    if not np.all(np.isfinite(pos)):
+        raise ValueError("fleet_xml: positions must be finite")
+    yaw = np.zeros(len(vehicles)) if yaws is None else np.asarray(yaws, np.float64).reshape(-1)
+    if yaw.shape[0] != len(vehicles):
+        raise ValueError(f"{len(vehicles)} vehicle names but {yaw.shape[0]} yaws")
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+    if not (timestep > 0 and math.isfinite(timestep)):
+        raise ValueError(f"timestep must be a positive number of seconds, got {timestep!r}")
+    bodies = "".join(_vehicle_body(v, f"r{i}_", pos[i], yaw[i]) for i, v in enumerate(vehicles))
+    acts = "\n".join(_vehicle_actuators(f"r{i}_") for i in range(len(vehicles)))
+    return f"""<mujoco model="jaxplan_fleet">
+  <option timestep="{_f(timestep)}" integrator="{integrator}" gravity="0 0 {_f(-GRAVITY)}"
+          density="0" viscosity="0"/>
+  <worldbody>
+    <light pos="0 0 10" dir="0 0 -1" directional="true"/>
+    <geom name="ground" type="plane" size="50 50 0.1" rgba="0.8 0.8 0.8 1"
+          contype="0" conaffinity="0"/>{bodies}
+  </worldbody>
+  <actuator>
+{acts}
+  </actuator>
+</mujoco>
+"""
+
+
+def vehicle_xml(name: str, position=(0.0, 0.0, 1.0), **kwargs) -> str:
+    """MJCF of a single vehicle; ``fleet_xml([name], [position], **kwargs)``.
+
+    Args:
+        name: vehicle name.  position: (3,) initial position, m.
+        kwargs: yaws, timestep (s), integrator, as in :func:`fleet_xml`.
+    Returns:
+        The MJCF string (the vehicle is ``r0_``).
+    """
+    return fleet_xml([name], [position], **kwargs)
+
+
+def fleet_model(names: Sequence[str], positions, **kwargs) -> mujoco.MjModel:
+    """Compiled MuJoCo model of a fleet: ``MjModel.from_xml_string(fleet_xml(...))``.
+
+    After compiling, each body's principal inertia is set to the vehicle table's exact
+    value.  The RotorS Firefly (.0348 + .0459 < .0977) and Neo 11 (.0608 + .0688 <
+    .1489) inertias violate the triangle inequality A + B >= C that every rigid body
+    satisfies, so MuJoCo's compiler rejects them; Gazebo (ODE) never checked, and the
+    paper's vehicles flew with these numbers.  The XML therefore carries the nearest
+    compilable inertia (:func:`_compilable_inertia`: Izz lowered to Ixx + Iyy) and the
+    compiled model gets the table's values back (Euler's rigid-body equations are well
+    posed for any positive diagonal inertia; with no contacts nothing else reads it
+    except derived constants, which ``mj_setConst`` recomputes).
+
+    Args and kwargs as :func:`fleet_xml`.  Returns an ``mujoco.MjModel`` (float64).
+    """
+    model = mujoco.MjModel.from_xml_string(fleet_xml(names, positions, **kwargs))
+    for i, name in enumerate(names):
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"r{i}_body")
+        model.body_inertia[bid] = np.asarray(get_vehicle(name).inertia, dtype=np.float64)
+    mujoco.mj_setConst(model, mujoco.MjData(model))
+    return model
+
+
+def to_mjx(model: mujoco.MjModel):
+    """Put a MuJoCo model on MJX, keeping float64.
+
+    Args:
+        model: mujoco.MjModel.
+    Returns:
+        (mjx.Model, mjx.Data at the model's qpos0 with zero velocity and controls).
+    Raises:
+        RuntimeError if JAX x64 is off (MJX would silently compute in float32).
+    """
+    import jax
+    from mujoco import mjx
+
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError("to_mjx needs jax x64 (import jaxplan first)")
+    mx = mjx.put_model(model)
+    dx = mjx.make_data(mx)
+    if mx.body_mass.dtype != np.float64 or dx.qpos.dtype != np.float64:
+        raise RuntimeError(f"MJX model is {mx.body_mass.dtype}, expected float64")
+    return mx, dx
+
+
+def fleet_state(qpos, qvel) -> VehicleState:
+    """Per-vehicle state from a fleet's qpos/qvel (NumPy or JAX arrays; reshapes only).
+
+    Args:
+        qpos: (..., 7 M) free-joint coordinates.  qvel: (..., 6 M).
+    Returns:
+        VehicleState with leaves (..., M, 3) / quat (..., M, 4): position m, velocity m/s
+        (world), quat wxyz, ang_vel rad/s (body).
+    """
+    qp = qpos.reshape(qpos.shape[:-1] + (-1, 7))
+    qv = qvel.reshape(qvel.shape[:-1] + (-1, 6))
+    return VehicleState(qp[..., 0:3], qv[..., 0:3], qp[..., 3:7], qv[..., 3:6])
+
+
+def fleet_ctrl(thrust, moments):
+    """Controls vector of a fleet from per-vehicle thrust and moments.
+
+    Args:
+        thrust: (..., M) N.  moments: (..., M, 3) body moments, N m (NumPy or JAX).
+    Returns:
+        (..., 4 M) ctrl, vehicle-major: [f_0, Mx_0, My_0, Mz_0, f_1, ...].
+    """
+    if isinstance(thrust, np.ndarray) and isinstance(moments, np.ndarray):
+        xp = np
+    else:
+        import jax.numpy as xp
+    w = xp.concatenate([thrust[..., None], moments], axis=-1)
+    return w.reshape(w.shape[:-2] + (-1,))
