@@ -1,0 +1,301 @@
+"""Tests of jaxplan.plots: every figure of a synthetic run and sweep is written, is a
+valid, non-blank image of the documented size; best_setting's order; clear errors."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import matplotlib
+import numpy as np
+import pytest
+from PIL import Image
+
+import jaxplan  # noqa: F401
+from jaxplan import plots
+from jaxplan.metrics import sample_pieces
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+GIF_MAGICS = (b"GIF89a", b"GIF87a")
+
+# ------------------------------------------------------------------------------ fixtures
+
+
+def min_jerk_piece(p0, p1, T):
+    """Rest-to-rest quintic from p0 to p1 in T s: coefficients (N, 6) in t, lowest first."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    d = p1 - p0
+    c = np.zeros((p0.size, 6))
+    c[:, 0] = p0
+    c[:, 3] = 10 * d / T**3
+    c[:, 4] = -15 * d / T**4
+    c[:, 5] = 6 * d / T**5
+    return c
+
+
+def make_run(run_dir, *, ndim=3, metrics=True, config=None, drop=None, nan_key=None):
+    """A 3-robot run: robots 0 and 1 swap along x passing 0.7 m apart (rho = 0.54 m,
+    ratio 1.296), robot 2 crosses them later; each moves on one quintic piece, then holds
+    its goal on a constant piece until t_end = 5 s."""
+    starts = np.array([[-2.0, 0.0, 1.0], [2.0, 0.7, 1.0], [0.0, -2.5, 1.6]])[:, :ndim]
+    goals = np.array([[2.0, 0.0, 1.0], [-2.0, 0.7, 1.0], [0.0, 2.5, 1.6]])[:, :ndim]
+    durations = [4.0, 4.0, 3.0]
+    t_end = 5.0
+    seg_robot, seg_t0, seg_t1, coeffs = [], [], [], []
+    for i in range(3):
+        seg_robot += [i, i]
+        seg_t0 += [0.0, durations[i]]
+        seg_t1 += [durations[i], t_end]
+        coeffs.append(min_jerk_piece(starts[i], goals[i], durations[i]))
+        hold = np.zeros((ndim, 6))
+        hold[:, 0] = goals[i]
+        coeffs.append(hold)
+    seg = (np.array(seg_robot), np.array(seg_t0), np.array(seg_t1), np.stack(coeffs))
+    t = np.linspace(0.0, t_end, 501)  # 100 Hz
+    pos, vel, acc = sample_pieces(*seg, t, num_robots=3, outside="clamp")
+    data = dict(
+        t=t, pos=pos, vel=vel, acc=acc, radius=np.array([0.27, 0.27, 0.315]), goal=goals,
+        vehicle=np.array(["hummingbird", "hummingbird", "firefly"]),
+        seg_robot=seg[0], seg_t0=seg[1], seg_t1=seg[2], seg_coeffs=seg[3],
+    )
+    if nan_key is not None:
+        data[nan_key] = data[nan_key].copy()
+        data[nan_key][1, 7, 0] = np.nan
+    for k in drop or ():
+        data.pop(k)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    np.savez(run_dir / "trajectories.npz", **data)
+    if metrics:
+        (run_dir / "metrics.json").write_text(json.dumps(dict(
+            success=True, collisions=0, min_separation_ratio=0.7 / 0.54, makespan_s=4.0)))
+    if config is not None:
+        (run_dir / "config.toml").write_text(config)
+    return run_dir
+
+
+def check_png(path, size):
+    assert path.is_file(), path
+    assert path.read_bytes()[:8] == PNG_MAGIC
+    with Image.open(path) as im:
+        assert im.size == size
+        a = np.asarray(im.convert("RGB"), dtype=float)
+    assert a.std() > 10.0, f"{path.name} looks blank (std {a.std():.2f})"
+    # a real figure uses many colours, not two or three
+    assert np.unique(a.reshape(-1, 3), axis=0).shape[0] > 20
+
+
+def check_gif(path, size, min_frames=2):
+    assert path.is_file(), path
+    assert path.read_bytes()[:6] in GIF_MAGICS
+    with Image.open(path) as im:
+        assert im.size == size
+        n = im.n_frames
+        assert n >= min_frames
+        frames = []
+        for k in range(n):
+            im.seek(k)
+            frames.append(np.asarray(im.convert("RGB"), dtype=float))
+    assert frames[0].std() > 10.0
+    diffs = [np.abs(frames[k] - frames[0]).mean() for k in range(1, n)]
+    assert max(diffs) > 0.5, "the animation does not move"
+    return n
+
+
+# --------------------------------------------------------------------------------- runs
+
+
+def test_plot_run_3d_writes_every_figure(tmp_path):
+    run = make_run(tmp_path / "run")
+    rc = dict(matplotlib.rcParams)
+    paths = plots.plot_run(run, max_frames=16)
+    assert dict(matplotlib.rcParams) == rc  # no global style leaked
+    names = [p.name for p in paths]
+    assert names == ["trajectories_3d.png", "speed_acc.png", "separation.png", "animation.gif"]
+    assert all(p.parent == run / "figures" for p in paths)
+    check_png(paths[0], (840, 720))
+    check_png(paths[1], (960, 660))
+    check_png(paths[2], (1320, 576))
+    n = check_gif(paths[3], (640, 480))
+    assert 2 <= n <= 16
+    assert not [p for p in (run / "figures").iterdir() if p.name.startswith(".")]  # no temp
+
+
+def test_plot_run_2d_without_optional_files(tmp_path):
+    run = make_run(tmp_path / "planar", ndim=2, metrics=False)
+    paths = plots.plot_run(run, max_frames=8)
+    assert [p.name for p in paths] == [
+        "trajectories_2d.png", "speed_acc.png", "separation.png", "animation.gif"]
+    check_png(paths[0], (840, 720))
+    check_gif(paths[3], (640, 480))
+
+
+def test_plot_run_without_animation_and_pieces(tmp_path):
+    run = make_run(tmp_path / "r", drop=("seg_robot", "seg_t0", "seg_t1", "seg_coeffs"))
+    paths = plots.plot_run(run, animation=False)
+    assert [p.name for p in paths] == ["trajectories_3d.png", "speed_acc.png", "separation.png"]
+    assert not (run / "figures" / "animation.gif").exists()
+
+
+def test_frame_count_is_bounded():
+    t = np.linspace(0, 60.0, 6001)
+    assert plots._frame_times(t, 150).size == 150
+    assert plots._frame_times(np.linspace(0, 1.0, 101), 150).size <= 20  # real time
+
+
+def test_limits_from_config_metrics_and_vehicles(tmp_path):
+    run = make_run(tmp_path / "a")
+    d = plots.load_run(run)
+    np.testing.assert_allclose(d.limits["v_max"], [2.0, 2.0, 2.0])  # vehicle table
+    run = make_run(tmp_path / "b", config='name = "swap"\n[limits]\nv_max = 1.5\n')
+    d = plots.load_run(run)
+    np.testing.assert_allclose(d.limits["v_max"], 1.5)
+    np.testing.assert_allclose(d.limits["a_max"], 4.0)
+    assert d.name == "swap"
+    (run / "metrics.json").write_text(json.dumps({"limits": {"a_max": 3.0}}))
+    np.testing.assert_allclose(plots.load_run(run).limits["a_max"], 3.0)
+
+
+def test_exact_pair_minima_from_pieces(tmp_path):
+    d = plots.load_run(make_run(tmp_path / "r"))
+    dist, _, exact = plots._pair_minima(d)
+    assert exact
+    assert dist[0, 1] == pytest.approx(0.7, abs=1e-9)
+
+
+@pytest.mark.parametrize("key", ["pos", "radius", "vehicle", "t"])
+def test_missing_key_names_file_and_key(tmp_path, key):
+    run = make_run(tmp_path / "r", drop=(key,))
+    with pytest.raises(ValueError, match=rf"trajectories\.npz: {key}: missing"):
+        plots.plot_run(run, animation=False)
+
+
+@pytest.mark.parametrize("key", ["pos", "vel"])
+def test_non_finite_names_file_and_key(tmp_path, key):
+    run = make_run(tmp_path / "r", nan_key=key)
+    with pytest.raises(ValueError, match=rf"trajectories\.npz: {key}: non-finite"):
+        plots.plot_run(run)
+    assert not (run / "figures").exists()
+
+
+def test_bad_inputs(tmp_path):
+    with pytest.raises(ValueError, match=r"trajectories\.npz: file not found"):
+        plots.plot_run(tmp_path)
+    run = make_run(tmp_path / "r", drop=("seg_t1",))
+    with pytest.raises(ValueError, match=r"trajectories\.npz: seg_t1: missing"):
+        plots.load_run(run)
+    run = make_run(tmp_path / "c", config="[limits]\nv_max = -1\n")
+    with pytest.raises(ValueError, match=r"config\.toml: limits\.v_max"):
+        plots.load_run(run)
+    run = make_run(tmp_path / "m")
+    (run / "metrics.json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"metrics\.json: not valid JSON"):
+        plots.load_run(run)
+
+
+# ------------------------------------------------------------------------------- sweeps
+
+Q_OBS = [0.1, 1.0, 10.0]
+Q_LIM = [0.01, 0.1, 1.0]
+
+
+def sweep_rows(scenarios=("antipodal",)):
+    """3 x 3 grid, 2 seeds.  Success everywhere but q_obs = 0.1; of the fully successful
+    cells, (10, 0.1) and (10, 1) and (1, 1) have no collisions; of these, (10, 0.1) and
+    (10, 1) tie on min separation 1.4 and (10, 1) is faster: the best is (10, 1)."""
+    rows = []
+    for sc in scenarios:
+        for a, qo in enumerate(Q_OBS):
+            for b, ql in enumerate(Q_LIM):
+                for seed in (0, 1):
+                    success = qo > 0.5
+                    collisions = 0 if (qo, ql) in ((10.0, 0.1), (10.0, 1.0), (1.0, 1.0)) else 1
+                    sep = 1.4 if qo == 10.0 and ql >= 0.1 else 0.6 + 0.1 * a + 0.05 * b
+                    if (qo, ql) == (1.0, 1.0):
+                        sep = 1.2
+                    makespan = 10.0 - (ql == 1.0) - 0.1 * seed
+                    rows.append(dict(q_obs=qo, q_lim=ql, scenario=sc, seed=seed,
+                                     success="true" if success else "false",
+                                     min_separation_ratio=sep,
+                                     makespan_s=makespan if success else "",
+                                     collisions=collisions))
+    return rows
+
+
+def write_csv(path, rows, columns=None):
+    columns = columns or list(rows[0])
+    lines = [",".join(columns)] + [",".join(str(r[c]) for c in columns) for r in rows]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_best_setting_order(tmp_path):
+    csv = write_csv(tmp_path / "sweep.csv", sweep_rows())
+    best = plots.best_setting(csv)
+    assert (best["q_obs"], best["q_lim"]) == (10.0, 1.0)
+    assert best["success_rate"] == 1.0
+    assert best["collisions"] == 0.0
+    assert best["min_separation_ratio"] == pytest.approx(1.4)
+    assert best["makespan_s"] == pytest.approx(8.95)
+    assert best["runs"] == 2
+    # collisions outrank separation: give (1, 1) the largest separation of all
+    rows = sweep_rows()
+    for r in rows:
+        if (r["q_obs"], r["q_lim"]) == (1.0, 0.01):
+            r["min_separation_ratio"] = 3.0
+    assert (plots.best_setting(write_csv(tmp_path / "b.csv", rows))["q_lim"]) == 1.0
+    # success outranks everything: one failure at the best cell moves it to (10, 0.1)
+    rows = sweep_rows()
+    rows[[k for k, r in enumerate(rows) if (r["q_obs"], r["q_lim"]) == (10.0, 1.0)][0]][
+        "success"] = "0"
+    best = plots.best_setting(write_csv(tmp_path / "c.csv", rows))
+    assert (best["q_obs"], best["q_lim"]) == (10.0, 0.1)
+
+
+def test_plot_sweep_writes_heatmaps(tmp_path):
+    write_csv(tmp_path / "sw" / "sweep.csv", sweep_rows())
+    paths = plots.plot_sweep(tmp_path / "sw")
+    assert [p.name for p in paths] == ["success_rate.png", "min_separation.png", "makespan.png"]
+    for p in paths:
+        check_png(p, (552, 480))
+
+
+def test_plot_sweep_per_scenario_panels(tmp_path):
+    rows = [r for r in sweep_rows(("antipodal", "random_box")) if r["q_obs"] > 0.5]  # 2 x 3
+    write_csv(tmp_path / "sw" / "sweep.csv", rows)
+    paths = plots.plot_sweep(tmp_path / "sw")
+    for p in paths:
+        check_png(p, (3 * 552, 480))  # all scenarios + one panel each
+
+
+def test_sweep_bad_csv(tmp_path):
+    rows = sweep_rows()
+    cols = [c for c in rows[0] if c != "collisions"]
+    write_csv(tmp_path / "a" / "sweep.csv", rows, cols)
+    with pytest.raises(ValueError, match=r"sweep\.csv: collisions: column missing"):
+        plots.plot_sweep(tmp_path / "a")
+    rows[3]["success"] = "maybe"
+    write_csv(tmp_path / "b" / "sweep.csv", rows)
+    with pytest.raises(ValueError, match=r"sweep\.csv: success: line 5"):
+        plots.best_setting(tmp_path / "b" / "sweep.csv")
+    with pytest.raises(ValueError, match=r"sweep\.csv: file not found"):
+        plots.plot_sweep(tmp_path / "nothing")
+    assert math.isfinite(plots.best_setting(write_csv(tmp_path / "c.csv", sweep_rows()))["q_obs"])
+
+
+def test_mp4_falls_back_to_gif_without_ffmpeg(tmp_path, monkeypatch):
+    monkeypatch.setattr(plots.shutil, "which", lambda name: None)
+    run = make_run(tmp_path / "r")
+    with pytest.warns(UserWarning, match="ffmpeg not found"):
+        path = plots._animate(plots.load_run(run), run / "figures", mp4=True, max_frames=6)
+    assert path.name == "animation.gif"
+    check_gif(path, (640, 480))
+
+
+@pytest.mark.skipif(plots.shutil.which("ffmpeg") is None, reason="ffmpeg not on PATH")
+def test_mp4_with_ffmpeg(tmp_path):
+    run = make_run(tmp_path / "r")
+    path = plots.plot_run(run, mp4=True, max_frames=12)[-1]
+    assert path.name == "animation.mp4"
+    head = path.read_bytes()[:12]
+    assert head[4:8] == b"ftyp"
