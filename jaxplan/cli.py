@@ -1,0 +1,174 @@
+"""The `jaxplan` command (DESIGN.md "The command").
+
+    jaxplan run CONFIG.toml [--out DIR]        one experiment -> a run directory
+    jaxplan sweep CONFIG.toml [--out DIR]      a grid of weights x scenarios x seeds
+    jaxplan plot RUN_DIR                        (re)draw a run's figures
+    jaxplan bench [solver|predict|sim|all] [--json FILE]
+    jaxplan scenarios                           list built-in scenarios
+
+Bad input exits with status 2 and one line on stderr that names the problem.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+BENCHES = ("predict", "solver", "sim", "all")
+
+
+class _Fail(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="jaxplan",
+        description="Batched decentralized continuous-time multi-robot trajectory "
+        "optimization in JAX (Krishnan et al.).",
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    r = sub.add_parser("run", help="run one experiment and write a run directory")
+    r.add_argument("config", type=Path, help="experiment TOML file")
+    r.add_argument("--out", type=Path, default=None,
+                   help="run directory (default: runs/<name>)")
+    r.add_argument("--backend", choices=("ideal", "mjx"), default=None,
+                   help="override sim.backend of the config")
+    r.add_argument("--no-figures", action="store_true", help="skip the figures")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    s = sub.add_parser("sweep", help="run a weight x scenario x seed grid (resumable)")
+    s.add_argument("config", type=Path, help="sweep TOML file (with a [sweep] table)")
+    s.add_argument("--out", type=Path, default=None,
+                   help="sweep directory (default: sweeps/<name>)")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    pl = sub.add_parser("plot", help="(re)draw a run directory's figures")
+    pl.add_argument("run_dir", type=Path)
+    pl.add_argument("--no-animation", action="store_true")
+    b = sub.add_parser("bench", help="benchmarks (medians; compile time apart)")
+    b.add_argument("which", nargs="?", default="all", choices=BENCHES)
+    b.add_argument("--json", type=Path, default=None, help="write the figures as JSON")
+    sub.add_parser("scenarios", help="list built-in scenarios")
+    return p
+
+
+def _load(path: Path):
+    from jaxplan.config import ConfigError, load_config
+
+    try:
+        return load_config(path)
+    except ConfigError as e:
+        raise _Fail(str(e)) from None
+    except FileNotFoundError:
+        raise _Fail(f"{path}: no such file") from None
+
+
+def _cmd_run(args) -> int:
+    cfg = _load(args.config)
+    if args.backend:
+        import dataclasses
+
+        cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, backend=args.backend))
+    from jaxplan.experiment import run
+    from jaxplan.results import write_run
+
+    out = args.out or Path("runs") / cfg.name
+    res = run(cfg, progress=not args.quiet)
+    write_run(res, out, figures=not args.no_figures)
+    print(summary(res.metrics, out))
+    return 0
+
+
+def summary(m: dict, out: Path) -> str:
+    """The one-screen summary printed at the end of `jaxplan run`."""
+    f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)
+    s = m["solver"]
+    lines = [
+        f"{m['name']}: {'SUCCESS' if m['success'] else 'FAILED'}  ({m['robots']} robots, "
+        f"backend {m['backend']}, {m['replans']} replans over {m['duration_s']:.1f} s)",
+        f"  collisions {m['collisions']}   min separation ratio "
+        f"{f(m['min_separation_ratio'])} (exact, continuous time; < 1 is a collision)",
+        f"  makespan {f(m['makespan_s'], '{:.2f}')} s   peak speed {f(m['peak_speed'], '{:.2f}')}"
+        f" m/s ({f(m['peak_speed_over_limit'], '{:.3f}')} x v_max)",
+        f"  reached {sum(r['reached'] for r in m['per_robot'])}/{m['robots']} robots",
+        f"  replan wall time: median {f(s['median_ms'], '{:.1f}')} ms, p95 "
+        f"{f(s['p95_ms'], '{:.1f}')} ms, max {f(s['max_ms'], '{:.1f}')} ms; "
+        f"converged {f(s['converged_frac'], '{:.1%}')}",
+        f"  fallbacks: kept previous plan {m['fallbacks']['kept_previous']}, "
+        f"braking {m['fallbacks']['braking']}",
+        f"  compile {m['compile_s']:.1f} s, run {m['run_s']:.2f} s",
+        f"  results in {out}/ (metrics.json, trajectories.npz, config.toml, figures/)",
+    ]
+    return "\n".join(lines)
+
+
+def _cmd_plot(args) -> int:
+    from jaxplan.plots import plot_run
+
+    if not args.run_dir.is_dir():
+        raise _Fail(f"{args.run_dir}: not a directory")
+    try:
+        paths = plot_run(args.run_dir, animation=not args.no_animation)
+    except ValueError as e:
+        raise _Fail(str(e)) from None
+    for p in paths:
+        print(p)
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    which = ["predict", "solver", "sim"] if args.which == "all" else [args.which]
+    results = {}
+    for name in which:
+        if name == "predict":
+            from jaxplan.benchmarks.predict import run
+        elif name == "solver":
+            from jaxplan.benchmarks.solver import run
+        else:
+            from jaxplan.benchmarks.sim import run
+        results[name] = run()
+    if args.json:
+        from jaxplan.benchmarks.common import write_json
+
+        write_json(args.json, results if len(which) > 1 else results[which[0]])
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _cmd_scenarios(args) -> int:
+    from jaxplan.scenarios import SCENARIOS
+
+    width = max(len(n) for n in SCENARIOS)
+    for name, spec in SCENARIOS.items():
+        print(f"{name:<{width}}  {spec.description}")
+    return 0
+
+
+def _cmd_sweep(args) -> int:
+    cfg = _load(args.config)
+    from jaxplan.sweep import run_sweep
+
+    out = args.out or Path("sweeps") / cfg.name
+    run_sweep(cfg, out, progress=not args.quiet)
+    return 0
+
+
+def main(argv=None) -> int:
+    """Entry point; returns the exit status."""
+    args = _parser().parse_args(argv)
+    import jaxplan  # noqa: F401  (float64)
+
+    cmds = {"run": _cmd_run, "sweep": _cmd_sweep, "plot": _cmd_plot, "bench": _cmd_bench,
+            "scenarios": _cmd_scenarios}
+    try:
+        return cmds[args.command](args)
+    except _Fail as e:
+        print(f"jaxplan: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("jaxplan: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -1,0 +1,284 @@
+"""From a Config to a finished run: set-up, the jitted rollout, metrics.
+
+``run(config)`` is what ``jaxplan run`` does, without writing files (that is
+:mod:`jaxplan.results`).  A single run steps through one compiled replan
+period per call (:func:`simulate`), which times every fleet replan individually
+(``solver.median_ms / p95_ms / max_ms`` in metrics.json: wall time of the whole jitted
+replan + execution period, i.e. predictions, all NLP solves and bookkeeping) and drives
+the progress bar.  Batches of runs use the single ``lax.scan`` of
+:mod:`jaxplan.rollout`, vmapped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan import metrics as mt
+from jaxplan import solver as slv
+from jaxplan.config import Config, build_scenario
+from jaxplan.costs import Limits, NLPStructure, Weights
+from jaxplan.planner import ACCEPTED, BRAKING, KEPT_PREVIOUS, FleetParams, PlannerStructure
+from jaxplan.rollout import RolloutStructure, Task, initial_state, step
+from jaxplan.scenarios import Scenario
+
+T_MIN = 0.05  # s, lower bound on every plan's horizon
+ACCEPT_VIOLATION = 1e-3  # m^2: largest collision-constraint violation accepted at max-iters
+SAMPLE_HZ = 100.0  # trajectories.npz sampling rate
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced (host arrays).
+
+    metrics: the metrics.json dict.  arrays: the trajectories.npz dict.  records: the
+    stacked StepRecord (numpy).  compile_s, run_s: seconds.  scenario: the Scenario.
+    """
+
+    config: Config
+    scenario: Scenario
+    metrics: dict
+    arrays: dict
+    records: object
+    compile_s: float
+    run_s: float
+
+
+def structures(config: Config) -> RolloutStructure:
+    """Static structures of a config (shapes other than M, N, W)."""
+    pc = config.planner
+    sc = build_scenario(config)
+    nlp = NLPStructure(
+        n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
+        collision=pc.collision, n_collision_samples=_mult4(pc.n_samples),
+    )
+    steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
+    return RolloutStructure(planner=PlannerStructure(nlp=nlp, max_iters=pc.max_iters),
+                            steps=steps)
+
+
+def _mult4(n: int) -> int:
+    return max(4, 4 * math.ceil(n / 4))
+
+
+def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = None) -> FleetParams:
+    """Traced fleet parameters from a config and its scenario."""
+    pc = config.planner
+    w = weights or Weights(*(jnp.asarray(float(x)) for x in
+                             (pc.q_dynm, pc.q_obs, pc.q_lim, pc.k_t, pc.k_p)))
+    lim = Limits(jnp.asarray(scenario.v_max), jnp.asarray(scenario.a_max),
+                 jnp.asarray(scenario.j_max))
+    M = scenario.start.shape[0]
+    settings = slv.SolverSettings(max_iters=pc.max_iters)
+    return FleetParams(
+        weights=w, limits=lim, radius=jnp.asarray(scenario.radius),
+        robot_mask=jnp.ones((M,), bool), dt=jnp.asarray(1.0 / pc.replan_hz),
+        t_min=jnp.asarray(T_MIN), prediction_weight=jnp.asarray(pc.k_t / pc.q_dynm),
+        accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
+    )
+
+
+def task_of(config: Config, scenario: Scenario) -> Task:
+    """Traced task arrays of a scenario."""
+    full = scenario.rest | scenario.has_goal_velocity
+    gv = np.where(scenario.has_goal_velocity[..., None], scenario.goal_velocity, 0.0)
+    return Task(
+        start=jnp.asarray(scenario.start), waypoints=jnp.asarray(scenario.waypoints),
+        rest=jnp.asarray(full), goal_velocity=jnp.asarray(gv),
+        goal_tolerance=jnp.asarray(config.sim.goal_tolerance_m),
+        speed_tolerance=jnp.asarray(config.sim.goal_speed_tolerance_mps),
+    )
+
+
+_STEP_CACHE: dict = {}
+
+
+def step_runner(structure: RolloutStructure):
+    """The jitted replan period (cached per structure: one compilation per shape)."""
+    key = dataclasses.replace(structure, steps=0)  # the step does not depend on steps
+    if key not in _STEP_CACHE:
+        _STEP_CACHE[key] = jax.jit(lambda fp, task, st: step(fp, task, st, key))
+    return _STEP_CACHE[key]
+
+
+def simulate(fp: FleetParams, task: Task, structure: RolloutStructure, progress=None):
+    """Run one scenario, one jitted replan period per call, timing every replan.
+
+    Each call is the same compiled computation as one iteration of
+    :func:`jaxplan.rollout.rollout`'s scan (batches use that scan); stepping from the
+    host costs ~0.1 ms per replan and gives every replan's wall time and a live
+    progress bar.
+
+    Returns (final state, records stacked over ``structure.steps``, compile_s, run_s,
+    replan_ms (steps,)).  ``progress``: optional callable(n_steps_done).
+    """
+    fn = step_runner(structure)
+    st = initial_state(task, structure)
+    t0 = time.perf_counter()
+    compiled = fn.lower(fp, task, st).compile()
+    compile_s = time.perf_counter() - t0
+    recs = []
+    ms = np.empty(structure.steps)
+    t_start = time.perf_counter()
+    for k in range(structure.steps):
+        t0 = time.perf_counter()
+        st, rec = compiled(fp, task, st)
+        jax.block_until_ready(st)
+        ms[k] = 1e3 * (time.perf_counter() - t0)
+        recs.append(rec)
+        if progress:
+            progress(k + 1)
+    run_s = time.perf_counter() - t_start
+    records = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *recs)
+    return st, records, compile_s, run_s, ms
+
+
+def pieces_from_records(records):
+    """Flatten the executed pieces: seg_robot, seg_t0, seg_t1, seg_coeffs (non-empty only)."""
+    t0 = np.asarray(records.piece_t0)  # (K, M, S+1)
+    t1 = np.asarray(records.piece_t1)
+    c = np.asarray(records.piece_coeffs)  # (K, M, S+1, N, D+1)
+    K, M, P = t0.shape
+    robot = np.broadcast_to(np.arange(M)[None, :, None], (K, M, P))
+    keep = t1 > t0
+    order = np.lexsort((t0[keep], robot[keep]))
+    return (robot[keep][order].astype(np.int32), t0[keep][order], t1[keep][order],
+            c[keep][order])
+
+
+def compute_metrics(config: Config, scenario: Scenario, records, final,
+                    solve_ms) -> tuple[dict, dict]:
+    """metrics.json dict and trajectories.npz dict of a finished run."""
+    M = scenario.start.shape[0]
+    dt = 1.0 / config.planner.replan_hz
+    duration = records.t.shape[0] * dt
+    seg_robot, seg_t0, seg_t1, seg_c = pieces_from_records(records)
+    min_dist, t_min = mt.pairwise_min_separation(seg_robot, seg_t0, seg_t1, seg_c, num_robots=M)
+    sep = mt.separation_report(min_dist, scenario.radius)
+    kin = mt.kinematics(seg_robot, seg_t0, seg_t1, seg_c, num_robots=M)
+    reached = np.asarray(final.reached)
+    reach_time = np.asarray(final.reach_time)
+    reached = reached & (reach_time <= duration + 1e-9)
+    all_reached = bool(np.all(reached))
+    ttg = np.where(reached[:, -1], reach_time[:, -1], np.nan)
+    makespan = float(np.nanmax(ttg)) if all_reached else None
+    info = records.info
+    fallback = np.asarray(info.fallback)
+    status = np.asarray(info.status)
+    converged = status == slv.CONVERGED
+    per_robot = []
+    for i in range(M):
+        per_robot.append({
+            "vehicle": scenario.vehicles[i],
+            "reached": bool(np.all(reached[i])),
+            "waypoints_reached": int(np.sum(reached[i])),
+            "time_to_goal_s": _num(ttg[i]),
+            "path_length_m": _num(kin.path_length_m[i]),
+            "max_speed": _num(kin.max_speed[i]),
+            "max_acc": _num(kin.max_acc[i]),
+            "max_jerk": _num(kin.max_jerk[i]),
+            "v_max": float(scenario.v_max[i]),
+            "a_max": float(scenario.a_max[i]),
+            "j_max": float(scenario.j_max[i]),
+        })
+    solver = mt.solver_summary(solve_ms, converged)
+    solver.update({
+        "timed_replans": int(len(solve_ms)),
+        "iterations_median": float(np.median(np.asarray(info.iterations))),
+        "status_counts": {name: int(np.sum(status == code))
+                          for code, name in slv.STATUS_NAMES.items()},
+    })
+    metrics = {
+        "name": config.name,
+        "backend": config.sim.backend,
+        "success": bool(all_reached and sep["collisions"] == 0),
+        "collisions": int(sep["collisions"]),
+        "min_separation_ratio": _num(sep["min_separation_ratio"]),
+        "worst_pair": list(sep["worst_pair"]) if sep["worst_pair"] is not None else None,
+        "makespan_s": makespan,
+        "duration_s": duration,
+        "replans": int(records.t.shape[0]),
+        "robots": M,
+        "peak_speed": _num(np.nanmax(kin.max_speed)),
+        "peak_speed_over_limit": _num(np.nanmax(kin.max_speed / scenario.v_max)),
+        "per_robot": per_robot,
+        "solver": {k: _num(v) if isinstance(v, float) else v for k, v in solver.items()},
+        "fallbacks": {
+            "kept_previous": int(np.sum(fallback == KEPT_PREVIOUS)),
+            "braking": int(np.sum(fallback == BRAKING)),
+            "accepted": int(np.sum(fallback == ACCEPTED)),
+        },
+    }
+    t = np.arange(0.0, duration + 1e-9, 1.0 / SAMPLE_HZ)
+    pos, vel, acc = mt.sample_pieces(seg_robot, seg_t0, seg_t1, seg_c, t, num_robots=M,
+                                     outside="clamp")
+    N = scenario.start.shape[1]
+    arrays = {
+        "t": t, "pos": pos, "vel": vel, "acc": acc,
+        "radius": np.asarray(scenario.radius, np.float64),
+        "goal": np.asarray(scenario.waypoints[:, -1], np.float64),
+        "waypoints": np.asarray(scenario.waypoints, np.float64),
+        "start": np.asarray(scenario.start, np.float64),
+        "vehicle": np.asarray(scenario.vehicles, dtype=f"U{_width(scenario.vehicles)}"),
+        "seg_robot": seg_robot, "seg_t0": seg_t0, "seg_t1": seg_t1, "seg_coeffs": seg_c,
+        "min_dist": np.where(np.isfinite(min_dist), min_dist, np.nan),
+        "replan_t": np.asarray(records.t),
+        "status": status.astype(np.int32),
+        "fallback": fallback.astype(np.int32),
+    }
+    del N
+    return metrics, arrays
+
+
+def _width(names) -> int:
+    return max(len(v) for v in names)
+
+
+def _num(x):
+    """A float for JSON; None for NaN / inf (strict JSON has neither)."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def run(config: Config, *, progress: bool = False) -> RunResult:
+    """Run one experiment (backend "ideal"); no files are written.
+
+    Args:
+        config: a validated Config (jaxplan.config.load_config / parse_config).
+        progress: show a tqdm progress bar over replans.
+    """
+    if config.sim.backend != "ideal":
+        from jaxplan.sim import fleet as _fleet  # noqa: F401  (raises if unavailable)
+
+        raise NotImplementedError(
+            f"{config.source or config.name}: sim.backend = {config.sim.backend!r} is not wired "
+            "into `jaxplan run` yet; use backend = \"ideal\""
+        )
+    scenario = build_scenario(config)
+    structure = structures(config)
+    fp = fleet_params(config, scenario)
+    task = task_of(config, scenario)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=structure.steps, desc=f"{config.name}", unit="replan", leave=False)
+
+    def _prog(n):
+        if bar is not None:
+            bar.n = n
+            bar.refresh()
+
+    final, records, compile_s, run_s, solve_ms = simulate(fp, task, structure, _prog)
+    if bar is not None:
+        bar.close()
+    metrics, arrays = compute_metrics(config, scenario, records, final, solve_ms)
+    metrics["compile_s"] = compile_s
+    metrics["run_s"] = run_s
+    return RunResult(config, scenario, metrics, arrays, records, compile_s, run_s)

@@ -1,0 +1,253 @@
+"""One replanning step of the whole fleet (MATH.md section 3).
+
+Each robot i has its own *view* of every other robot j: the last state and goal it
+received from j (:class:`Views`, arrays (M, M, ...) indexed [observer, sender]).  By
+default every view is fresh (:func:`fresh_views`); the structure also carries an age
+and a validity flag so that stale or missing messages can be injected.
+
+From its view each robot predicts the others in closed form (:mod:`jaxplan.predict`),
+builds its NLP (:mod:`jaxplan.costs`) and solves it; all robots' NLPs are solved in one
+vmapped call (:mod:`jaxplan.solver`).  Warm start: the robot's previous plan shifted by
+the replan period; the first plan starts from its own prediction.
+
+Fallbacks (counted in :class:`ReplanInfo`): a robot whose solve is not accepted keeps
+its previous plan (shifted to now), or, when that plan has run out, a braking plan
+that brings it to rest.  A solve is accepted when its plan is finite, its equality
+residual is <= 1e-6 and its status is CONVERGED, or MAX_ITERS with every inequality
+satisfied to ``accept_violation``.  No NaN leaves this step.
+
+Everything here is pure and jit-able; shapes are fixed by (M, N, structure).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import solver as slv
+from jaxplan.costs import Limits, Multipliers, NLPParams, NLPStructure, Weights
+from jaxplan.predict import _quintic_terms, predict_arrays
+from jaxplan.trajectory import Trajectory, _compose_matrix
+
+# fallback kinds in ReplanInfo.fallback
+ACCEPTED, KEPT_PREVIOUS, BRAKING = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class PlannerStructure:
+    """Static planner settings (hashable; a change recompiles).
+
+    nlp: the NLP's static structure.  max_iters: solver iteration cap.
+    """
+
+    nlp: NLPStructure = field(default_factory=NLPStructure)
+    max_iters: int = 60
+
+
+class FleetParams(NamedTuple):
+    """Traced fleet parameters (a pytree; changing values never recompiles).
+
+    weights: Weights (scalars, or batched for sweeps).  limits: Limits with (M,) arrays.
+    radius: (M,) m.  robot_mask: (M,) bool, False for padding robots (never planned,
+    invisible to others).  dt: () replan period, s.  t_min: () s, lower bound on T.
+    prediction_weight: () time weight w of the closed-form predictions.
+    accept_violation: () largest inequality violation (m^2) accepted from a solve that
+    hit its iteration cap.  settings: solver.SolverSettings.
+    """
+
+    weights: Weights
+    limits: Limits
+    radius: jax.Array
+    robot_mask: jax.Array
+    dt: jax.Array
+    t_min: jax.Array
+    prediction_weight: jax.Array
+    accept_violation: jax.Array
+    settings: slv.SolverSettings
+
+
+class Views(NamedTuple):
+    """What each observer last received from each sender, arrays indexed [i, j].
+
+    p, v, a: (M, M, N) state; goal_p, goal_v: (M, M, N); rest: (M, M) bool;
+    age: (M, M) seconds since the message was sent; valid: (M, M) bool (False: nothing
+    received, the sender is ignored).
+    """
+
+    p: jax.Array
+    v: jax.Array
+    a: jax.Array
+    goal_p: jax.Array
+    goal_v: jax.Array
+    rest: jax.Array
+    age: jax.Array
+    valid: jax.Array
+
+
+class PlanState(NamedTuple):
+    """Per-robot planner memory carried between replans.
+
+    plan: Trajectory (M,), each starting at the time of the last replan.  has_plan: (M,).
+    multipliers, penalty: augmented-Lagrangian warm start.
+    """
+
+    plan: Trajectory
+    has_plan: jax.Array
+    multipliers: Multipliers
+    penalty: jax.Array
+
+
+class ReplanInfo(NamedTuple):
+    """Per-robot diagnostics of one replan, each (M,)."""
+
+    status: jax.Array
+    iterations: jax.Array
+    objective: jax.Array
+    eq_violation: jax.Array
+    ineq_violation: jax.Array
+    fallback: jax.Array  # ACCEPTED / KEPT_PREVIOUS / BRAKING
+
+
+def fresh_views(p, v, a, goal_p, goal_v, rest) -> Views:
+    """Every observer sees every sender's current state and goal.
+
+    Args: p, v, a, goal_p, goal_v (M, N); rest (M,) bool.
+    """
+    M = p.shape[0]
+    b = lambda x: jnp.broadcast_to(x[None], (M,) + x.shape)
+    return Views(b(p), b(v), b(a), b(goal_p), b(goal_v), b(rest),
+                 jnp.zeros((M, M)), jnp.ones((M, M), bool))
+
+
+def predict_views(views: Views, w) -> Trajectory:
+    """Closed-form predictions of every sender from every observer's view: batch (M, M)."""
+    return predict_arrays(views.p, views.v, views.a, views.goal_p, views.goal_v,
+                          jnp.zeros_like(views.p), views.rest, w)
+
+
+def braking_plan(p, v, a, a_max, structure: PlannerStructure) -> Trajectory:
+    """A plan that brings each robot from (p, v, a) to rest, batch (M,).
+
+    A rest-ended quintic over T_b = max(1.5 |v| / a_max, 0.5 s) to p + v T_b / 2 (the
+    stopping point of a constant deceleration), re-expressed on the planner's segments
+    and degree.  Finite for finite input.
+    """
+    speed = jnp.linalg.norm(v, axis=-1)
+    Tb = jnp.maximum(1.5 * speed / jnp.maximum(a_max, 1e-3), 0.5)
+    target = p + v * Tb[:, None] * 0.5
+    N = p.shape[-1]
+    ax = lambda x: [x[:, d] for d in range(N)]
+    zero = [jnp.zeros_like(Tb)] * N
+    rows = _quintic_terms(ax(p), ax(v), ax(a), ax(target), zero, zero,
+                          jnp.ones_like(Tb, bool), Tb)
+    c = jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)  # (M, N, 6)
+    one = Trajectory.from_normalized(c[:, None], Tb, coast=False)
+    return resample(one, structure.nlp.segments, structure.nlp.degree)
+
+
+def resample(traj: Trajectory, segments: int, degree: int) -> Trajectory:
+    """Re-express one-segment trajectories (degree <= ``degree``) on ``segments`` equal
+    segments of degree ``degree``: exact (segment k is the same polynomial composed with
+    s = (k + sigma) / segments)."""
+    D0 = traj.degree
+    if D0 > degree:
+        raise ValueError(f"cannot lower the degree from {D0} to {degree}")
+    c = traj.coeffs[..., 0, :, :]  # (..., N, D0+1)
+    if D0 < degree:
+        c = jnp.concatenate([c, jnp.zeros(c.shape[:-1] + (degree - D0,), c.dtype)], -1)
+    if segments == 1:
+        return Trajectory(c[..., None, :, :], traj.breaks, traj.coast)
+    K = degree + 1
+    mats = jnp.stack([_compose_matrix(k / segments, 1.0 / segments, K, c.dtype)
+                      for k in range(segments)])  # (S, K, K)
+    coeffs = jnp.einsum("smi,...ni->...snm", mats, c)
+    return Trajectory.from_normalized(coeffs, traj.duration, traj.coast)
+
+
+def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v, rest,
+           structure: PlannerStructure):
+    """One receding-horizon replan of the whole fleet.
+
+    Args:
+        fp: FleetParams.  ps: PlanState from the previous replan (plans start at the
+        previous replan time, i.e. ``fp.dt`` ago).  views: what each robot knows of the
+        others.  p, v, a: (M, N) each robot's own measured state now.  goal_p, goal_v:
+        (M, N) current goals; rest: (M,) bool fully defined end state.
+        structure: static PlannerStructure.
+    Returns:
+        (new PlanState with every plan starting now, ReplanInfo).
+    """
+    M = p.shape[0]
+    nlp = structure.nlp
+    preds = predict_views(views, fp.prediction_weight)  # batch (M, M)
+    eye = jnp.eye(M, dtype=bool)
+    other_mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
+    limits_i = Limits(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
+    params = NLPParams(
+        p0=p, v0=v, a0=a, goal_p=goal_p, goal_v=goal_v, goal_a=jnp.zeros_like(p), rest=rest,
+        others=preds, other_radius=jnp.broadcast_to(fp.radius, (M, M)), other_mask=other_mask,
+        radius=fp.radius, weights=jax.tree.map(lambda w: jnp.broadcast_to(w, (M,)), fp.weights),
+        limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
+    )
+
+    x_cold = jax.vmap(lambda pr: slv.initial_guess(pr, nlp))(params)
+    x_warm = jax.vmap(lambda prev, pr: slv.warm_start(prev, fp.dt, pr, nlp))(ps.plan, params)
+    x0 = jnp.where(ps.has_plan[:, None], x_warm, x_cold)
+    mult = jax.tree.map(lambda m: jnp.where(
+        ps.has_plan.reshape((M,) + (1,) * (m.ndim - 1)), m, 0.0), ps.multipliers)
+    pen = jnp.where(ps.has_plan, ps.penalty, fp.settings.mu0)
+    settings = fp.settings
+    sol = jax.vmap(lambda pr, x, m, pe: slv.solve(pr, x, nlp, settings, m, pe))(
+        params, x0, mult, pen)
+
+    finite = jnp.all(jnp.isfinite(sol.traj.coeffs), axis=(-1, -2, -3)) & jnp.all(
+        jnp.isfinite(sol.traj.breaks), axis=-1)
+    good_status = (sol.status == slv.CONVERGED) | (
+        (sol.status == slv.MAX_ITERS) & (sol.ineq_violation <= fp.accept_violation))
+    accepted = finite & good_status & (sol.eq_violation <= 1e-6)
+
+    prev = ps.plan.shift(fp.dt)
+    prev_ok = ps.has_plan & (prev.duration > 0) & jnp.all(
+        jnp.isfinite(prev.coeffs), axis=(-1, -2, -3))
+    brake = braking_plan(p, v, a, limits_i.a_max, structure)
+    fallback = jnp.where(accepted, ACCEPTED, jnp.where(prev_ok, KEPT_PREVIOUS, BRAKING))
+    sel = lambda c, x, y: jax.tree.map(
+        lambda u, w: jnp.where(c.reshape(c.shape + (1,) * (u.ndim - c.ndim)), u, w), x, y)
+    plan = sel(accepted, sol.traj, sel(prev_ok, prev, brake))
+    # padding robots hold where they are
+    hold = Trajectory.hold(p, nlp.degree, nlp.segments)
+    plan = sel(fp.robot_mask, plan, hold)
+    fallback = jnp.where(fp.robot_mask, fallback, ACCEPTED)
+
+    new_mult = sel(accepted, sol.multipliers, jax.tree.map(jnp.zeros_like, sol.multipliers))
+    new_pen = jnp.where(accepted, sol.penalty, settings.mu0)
+    new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen)
+    info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
+                      sol.ineq_violation, fallback.astype(jnp.int32))
+    return new_ps, info
+
+
+def initial_plan_state(p, structure: PlannerStructure, n_others: int) -> PlanState:
+    """Planner memory before the first replan: no plans (first solves start cold).
+
+    Args: p (M, N) start positions; n_others: M (others are padded to the fleet size).
+    """
+    M = p.shape[0]
+    nlp = structure.nlp
+    plan = Trajectory.hold(p, nlp.degree, nlp.segments)
+    dummy = _dummy_params(p.shape[-1], n_others)
+    mult = slv.zero_multipliers(dummy, nlp)
+    mult = jax.tree.map(lambda m: jnp.zeros((M,) + m.shape), mult)
+    return PlanState(plan, jnp.zeros((M,), bool), mult, jnp.zeros((M,)))
+
+
+def _dummy_params(N: int, Mo: int) -> NLPParams:
+    z = jnp.zeros((N,))
+    others = Trajectory.hold(jnp.zeros((Mo, N)))
+    one = jnp.asarray(1.0)
+    return NLPParams(z, z, z, z, z, z, jnp.asarray(False), others, jnp.ones((Mo,)),
+                     jnp.ones((Mo,), bool), one, Weights(one, one, one, one, one),
+                     Limits(one, one, one), one)
