@@ -1,0 +1,85 @@
+"""The `jaxplan` command: every contract file of a run directory, clear errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jaxplan.cli import main
+from tests.conftest import TINY_TOML
+
+
+def test_run_writes_every_contract_file(tmp_path, capsys, tiny_run):
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY_TOML)
+    out = tmp_path / "run"
+    assert main(["run", str(cfg), "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "SUCCESS" in printed and str(out) in printed
+    # config.toml: the fully resolved config, loadable again
+    from jaxplan.config import load_config
+
+    resolved = load_config(out / "config.toml")
+    assert resolved.planner.replan_hz == 8.0 and resolved.planner.degree == 5
+    m = json.loads((out / "metrics.json").read_text())
+    for key in ("success", "collisions", "min_separation_ratio", "makespan_s", "per_robot",
+                "solver"):
+        assert key in m
+    for key in ("reached", "time_to_goal_s", "path_length_m", "max_speed", "max_acc",
+                "max_jerk"):
+        assert key in m["per_robot"][0]
+    for key in ("median_ms", "p95_ms", "max_ms", "converged_frac"):
+        assert key in m["solver"]
+    with np.load(out / "trajectories.npz", allow_pickle=False) as z:
+        M = 3
+        K = z["t"].shape[0]
+        assert z["pos"].shape == (M, K, 3) and z["vel"].shape == (M, K, 3)
+        assert z["acc"].shape == (M, K, 3)
+        assert np.all(np.diff(z["t"]) <= 0.01 + 1e-12)  # >= 100 Hz
+        assert z["radius"].shape == (M,) and z["goal"].shape == (M, 3)
+        assert z["vehicle"].dtype.kind == "U"
+        S = z["seg_robot"].shape[0]
+        assert z["seg_t0"].shape == (S,) and z["seg_t1"].shape == (S,)
+        assert z["seg_coeffs"].shape == (S, 3, 6)
+    figs = sorted(p.name for p in (out / "figures").iterdir())
+    assert {"trajectories_3d.png", "speed_acc.png", "separation.png", "animation.gif"} <= set(
+        figs)
+    # the run's metrics agree with the in-process run of the same config
+    assert m["collisions"] == tiny_run.metrics["collisions"]
+    assert abs(m["min_separation_ratio"] - tiny_run.metrics["min_separation_ratio"]) < 1e-9
+
+
+def test_bad_config_is_one_clear_line(tmp_path, capsys):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(TINY_TOML.replace('seed = 0', 'seed = 0\n[planner]\nq_ob = 3.0'))
+    assert main(["run", str(cfg)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "bad.toml" in err and "planner.q_ob" in err
+
+
+def test_missing_file(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nope.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "nope.toml" in err and "No such file" in err
+
+
+def test_scenarios_lists_builtins(capsys):
+    assert main(["scenarios"]) == 0
+    out = capsys.readouterr().out
+    for name in ("paper:six_neos", "antipodal_sphere", "random_box", "grid_swap", "stacked"):
+        assert name in out
+
+
+def test_python_dash_m(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "jaxplan", "--help"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0 and "run" in r.stdout
+
+
+@pytest.mark.parametrize("cmd", [["plot", "/nonexistent/dir"]])
+def test_plot_bad_dir(cmd, capsys):
+    assert main(cmd) == 2
+    assert "not a directory" in capsys.readouterr().err
