@@ -76,8 +76,8 @@ def _compilable_inertia(inertia) -> tuple[float, float, float]:
     return min(ix, iy + iz), min(iy, ix + iz), min(iz, ix + iy)
 
 
-def _vehicle_body(vehicle: Vehicle, prefix: str, pos, yaw: float) -> str:
-    """<body> element of one vehicle (free joint, inertial, site, picture geoms)."""
+def _vehicle_body(vehicle: Vehicle, prefix: str, pos, yaw: float, visual: bool = True) -> str:
+    """<body> element of one vehicle (free joint, inertial, site, picture geoms if ``visual``)."""
     px, py, pz = (float(c) for c in pos)
     ix, iy, iz = _compilable_inertia(vehicle.inertia)
     l, rr = vehicle.arm_length, vehicle.rotor_radius
@@ -94,7 +94,7 @@ def _vehicle_body(vehicle: Vehicle, prefix: str, pos, yaw: float) -> str:
         col = "0.1 0.1 0.1 0.5" if d > 0 else "0.8 0.1 0.1 0.5"
         geoms.append(f'<geom name="{prefix}rotor{k}" type="cylinder" size="{_f(rr)} 0.004" '
                      f'pos="{_f(x)} {_f(y)} 0.02" rgba="{col}" {nocol}/>')
-    body = "\n      ".join(geoms)
+    body = "\n      ".join(geoms) if visual else ""
     return f"""
     <body name="{prefix}body" pos="{_f(px)} {_f(py)} {_f(pz)}" quat="{quat}">
       <freejoint name="{prefix}joint"/>
@@ -115,7 +115,7 @@ def _vehicle_actuators(prefix: str) -> str:
 
 
 def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0.002,
-              integrator: str = "Euler") -> str:
+              integrator: str = "Euler", visual: bool = True) -> str:
     """MJCF of a (heterogeneous) fleet: one non-colliding free body per vehicle.
 
     Args:
@@ -124,6 +124,11 @@ def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0
         yaws: (M,) initial yaw angles, rad, or None (zeros).
         timestep: physics step, s (0.002 = 500 Hz).
         integrator: "Euler" (MuJoCo semi-implicit Euler) or "RK4".
+        visual: True (default) adds the picture geoms (core box, arms, rotors, ground
+            plane, light); False gives bodies with no geoms at all, whose structure is
+            the same for every vehicle kind (only mass and inertia differ) and which
+            MJX steps faster (no geom kinematics): what :mod:`jaxplan.sim.fleet` uses.
+            The dynamics are identical (geoms never collide and carry no mass).
     Returns:
         The MJCF string.  Vehicle i is body ``r{i}_body`` with joint ``r{i}_joint``,
         site ``r{i}_actuation`` and actuators ``r{i}_thrust, r{i}_mx, r{i}_my, r{i}_mz``
@@ -142,15 +147,17 @@ def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
     if not (timestep > 0 and math.isfinite(timestep)):
         raise ValueError(f"timestep must be a positive number of seconds, got {timestep!r}")
-    bodies = "".join(_vehicle_body(v, f"r{i}_", pos[i], yaw[i]) for i, v in enumerate(vehicles))
+    bodies = "".join(_vehicle_body(v, f"r{i}_", pos[i], yaw[i], visual)
+                     for i, v in enumerate(vehicles))
+    scenery = """
+    <light pos="0 0 10" dir="0 0 -1" directional="true"/>
+    <geom name="ground" type="plane" size="50 50 0.1" rgba="0.8 0.8 0.8 1"
+          contype="0" conaffinity="0"/>""" if visual else ""
     acts = "\n".join(_vehicle_actuators(f"r{i}_") for i in range(len(vehicles)))
     return f"""<mujoco model="jaxplan_fleet">
   <option timestep="{_f(timestep)}" integrator="{integrator}" gravity="0 0 {_f(-GRAVITY)}"
           density="0" viscosity="0"/>
-  <worldbody>
-    <light pos="0 0 10" dir="0 0 -1" directional="true"/>
-    <geom name="ground" type="plane" size="50 50 0.1" rgba="0.8 0.8 0.8 1"
-          contype="0" conaffinity="0"/>{bodies}
+  <worldbody>{scenery}{bodies}
   </worldbody>
   <actuator>
 {acts}

@@ -1,0 +1,245 @@
+"""Benchmark of the MJX closed loop (physics + SE(3) control; no planning).
+
+    .venv/bin/python -m jaxplan.benchmarks.sim [--json FILE] [--quick]
+
+What it measures (10 mixed vehicles, 500 Hz physics, 250 Hz control, 8 Hz periods,
+float64; every figure is the median of several repetitions, compile time apart):
+
+* ``physics_control_rtf``: simulated seconds per wall second of ONE 10-vehicle world
+  tracking fixed minimum-jerk plans, one jitted :func:`simulate_period` call per
+  0.125 s period from Python (what a host-side receding-horizon loop pays, dispatch
+  included), per layout; and ``..._in_scan``: the same periods inside one jitted
+  ``lax.scan`` (what a fully jitted receding-horizon loop pays).  Planning is NOT
+  included: the closed-loop figure is this time plus the planner's.
+* ``worlds64_world_steps_per_s``: physics steps x worlds per wall second for 64 worlds
+  (``vmap`` of ``simulate_period`` over a world axis), controller included.
+* ``mjx_physics_only_steps_per_s``: a ``lax.scan`` of the layout's physics step alone
+  (constant hover controls), to compare with the C engine like for like.
+* ``c_mj_step_steps_per_s``: plain ``mujoco.mj_step`` on the same MuJoCo model (one
+  world, constant controls), measured in the same run; ``c_rollout_64_world_steps_per_s``:
+  ``mujoco.rollout`` of 64 worlds on 2 threads.  Ratios are MJX / C.
+* ``headroom``: with a closed-loop target of 5x real time for one world, the wall time
+  per 0.125 s period left for planning = 0.125 / 5 - (physics + control per period).
+
+CPU time (``time.process_time``) is reported beside wall time as a cross-check: the
+machine is shared, so wall-clock figures are noisy; compare ratios taken in one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+import jaxplan  # noqa: F401  (x64)
+from jaxplan.sim import fleet
+from jaxplan.sim import model as sim_model_lib
+from jaxplan.trajectory import Trajectory
+from jaxplan.vehicles import GRAVITY, get_vehicle
+
+NAMES = ("hummingbird", "firefly", "neo11") * 3 + ("hummingbird",)
+PERIOD_S = 0.125
+
+
+def _fleet_setup(M: int, world: int = 0):
+    """Start positions on a circle (radius 4 m) and min-jerk lines of 3 m toward the centre."""
+    ang = 2 * np.pi * np.arange(M) / M + 0.1 * world
+    p0 = np.stack([4 * np.cos(ang), 4 * np.sin(ang), 1.5 + 0.1 * np.arange(M)], 1)
+    p1 = p0 * np.array([0.25, 0.25, 1.0])
+    L = p1 - p0
+    T = 1.875 * np.linalg.norm(L, axis=1).max() / 2.0  # peak speed 2 m/s
+    c = np.zeros((M, 1, 3, 6))
+    c[:, 0, :, 0] = p0
+    c[:, 0, :, 3], c[:, 0, :, 4], c[:, 0, :, 5] = 10 * L, -15 * L, 6 * L
+    return p0, Trajectory.from_normalized(jnp.asarray(c), jnp.full(M, T))
+
+
+def _timed(fn, reps):
+    """Median wall and CPU seconds of fn() (which blocks) over reps calls."""
+    wall, cpu = [], []
+    for _ in range(reps):
+        t, p = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - p)
+    return float(np.median(wall)), float(np.median(cpu))
+
+
+def _bench_layout(layout: str, sim_seconds: float, reps: int, worlds: int) -> dict:
+    M = len(NAMES)
+    p0, plans = _fleet_setup(M)
+    sim, st0 = fleet.init_sim(NAMES, p0, layout=layout)
+    n_periods = int(round(sim_seconds / PERIOD_S))
+    out = {}
+
+    # One world, one jitted call per period (host loop).
+    t = time.perf_counter()
+    jax.block_until_ready(fleet.simulate_period(sim, st0, plans, 0.0, PERIOD_S))
+    out["compile_s_period"] = time.perf_counter() - t
+
+    def host_loop():
+        st = st0
+        for k in range(n_periods):
+            st, rec = fleet.simulate_period(sim, st, plans, k * PERIOD_S, PERIOD_S)
+        jax.block_until_ready(st)
+
+    wall, cpu = _timed(host_loop, reps)
+    out["physics_control_rtf"] = sim_seconds / wall
+    out["physics_control_rtf_cpu"] = sim_seconds / cpu
+    out["physics_control_ms_per_period"] = 1e3 * wall / n_periods
+
+    # One world, all periods in one jitted scan.
+    @jax.jit
+    def scan_loop(st):
+        def body(st, k):
+            st, rec = fleet.simulate_period(sim, st, plans, k * PERIOD_S, PERIOD_S)
+            return st, rec.track_err.max()
+        return jax.lax.scan(body, st, jnp.arange(n_periods))
+
+    t = time.perf_counter()
+    jax.block_until_ready(scan_loop(st0))
+    out["compile_s_scan"] = time.perf_counter() - t
+    wall, cpu = _timed(lambda: jax.block_until_ready(scan_loop(st0)), reps)
+    out["physics_control_rtf_in_scan"] = sim_seconds / wall
+    out["physics_control_rtf_in_scan_cpu"] = sim_seconds / cpu
+
+    # Physics only (constant hover controls), one world.
+    n_steps = int(round(sim_seconds * sim.physics_hz))
+    thrust = jnp.asarray([get_vehicle(n).mass * GRAVITY for n in NAMES])
+    moments = jnp.zeros((M, 3))
+
+    @jax.jit
+    def physics_only(data):
+        return jax.lax.scan(lambda d, _: (fleet._physics_step(sim, d, thrust, moments), None),
+                            data, length=n_steps)[0]
+
+    jax.block_until_ready(physics_only(st0.data))
+    wall, _ = _timed(lambda: jax.block_until_ready(physics_only(st0.data)), reps)
+    out["mjx_physics_only_steps_per_s"] = n_steps / wall
+
+    # A batch of worlds (vmap over a leading world axis).
+    if worlds:
+        setups = [_fleet_setup(M, w) for w in range(worlds)]
+        P0 = jnp.asarray(np.stack([s[0] for s in setups]))
+        plans_w = jax.tree.map(lambda *x: jnp.stack(x), *[s[1] for s in setups])
+        states = jax.vmap(lambda p: fleet.initial_state(sim, p))(P0)
+
+        @jax.jit
+        def worlds_period(st, t0):
+            return jax.vmap(lambda s, p: fleet.simulate_period(sim, s, p, t0, PERIOD_S))(
+                st, plans_w)
+
+        t = time.perf_counter()
+        jax.block_until_ready(worlds_period(states, 0.0))
+        out["compile_s_worlds"] = time.perf_counter() - t
+        n_w = max(2, n_periods // 4)
+
+        def worlds_loop():
+            st = states
+            for k in range(n_w):
+                st, _ = worlds_period(st, k * PERIOD_S)
+            jax.block_until_ready(st)
+
+        wall, cpu = _timed(worlds_loop, max(2, reps // 2))
+        steps = n_w * PERIOD_S * sim.physics_hz * worlds
+        out[f"worlds{worlds}_world_steps_per_s"] = steps / wall
+        out[f"worlds{worlds}_world_steps_per_s_cpu"] = steps / cpu
+        out[f"worlds{worlds}_rtf_per_world"] = n_w * PERIOD_S * worlds / wall
+    return out
+
+
+def _bench_c(sim_seconds: float, reps: int, worlds: int) -> dict:
+    M = len(NAMES)
+    p0, _ = _fleet_setup(M)
+    m = sim_model_lib.fleet_model(NAMES, p0, visual=False)
+    d = mujoco.MjData(m)
+    ctrl = np.concatenate([[get_vehicle(n).mass * GRAVITY, 0, 0, 0] for n in NAMES])
+    d.ctrl[:] = ctrl
+    n_steps = int(round(sim_seconds / m.opt.timestep))
+
+    def loop():
+        for _ in range(n_steps):
+            mujoco.mj_step(m, d)
+
+    wall, _ = _timed(loop, reps)
+    out = {"c_mj_step_steps_per_s": n_steps / wall}
+    try:
+        from mujoco import rollout
+    except ImportError:  # pragma: no cover
+        return out
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    s0 = np.empty(mujoco.mj_stateSize(m, spec))
+    d2 = mujoco.MjData(m)
+    mujoco.mj_getState(m, d2, s0, spec)
+    n_r = int(round(sim_seconds / 4 / m.opt.timestep))
+    init = np.tile(s0, (worlds, 1))
+    ctrls = np.tile(ctrl, (worlds, n_r, 1))
+    datas = [mujoco.MjData(m) for _ in range(2)]
+    rollout.rollout(m, datas, init, ctrls)  # warm-up
+    wall, _ = _timed(lambda: rollout.rollout(m, datas, init, ctrls), reps)
+    out[f"c_rollout_{worlds}_world_steps_per_s"] = worlds * n_r / wall
+    return out
+
+
+def run(json_path=None, *, quick: bool = False, layouts=("vmap", "fleet")) -> dict:
+    """Run the benchmark, print it, optionally write JSON.
+
+    Args:
+        json_path: file to write the results to (JSON), or None.
+        quick: shorter runs (fewer repetitions, 2 s instead of 4 s simulated).
+        layouts: the layouts to measure.
+    Returns:
+        dict of figures (module docstring); the default layout's under plain keys, each
+        layout's under ``layouts[<name>]``.
+    """
+    sim_seconds = 2.0 if quick else 4.0
+    reps = 3 if quick else 5
+    worlds = 64
+    res = {"vehicles": len(NAMES), "physics_hz": 500, "control_hz": 250, "period_s": PERIOD_S,
+           "sim_seconds": sim_seconds, "repetitions": reps, "default_layout": fleet.DEFAULT_LAYOUT,
+           "jax": jax.__version__, "mujoco": mujoco.__version__, "layouts": {}}
+    c = _bench_c(sim_seconds, reps, worlds)
+    for lay in layouts:
+        res["layouts"][lay] = _bench_layout(lay, sim_seconds, reps, worlds)
+        print(f"[{lay}] " + ", ".join(f"{k}={v:.4g}" for k, v in res["layouts"][lay].items()),
+              flush=True)
+    c2 = _bench_c(sim_seconds, reps, worlds)  # again after, to see the machine's drift
+    for k in c:
+        res[k] = float(np.median([c[k], c2[k]]))
+    best = res["layouts"].get(fleet.DEFAULT_LAYOUT) or next(iter(res["layouts"].values()))
+    res.update({k: v for k, v in best.items()})
+    res["ratio_mjx_physics_only_vs_c_mj_step"] = (
+        best["mjx_physics_only_steps_per_s"] / res["c_mj_step_steps_per_s"])
+    key = f"worlds{worlds}_world_steps_per_s"
+    rkey = f"c_rollout_{worlds}_world_steps_per_s"
+    if key in best and rkey in res:
+        res[f"ratio_worlds{worlds}_vs_c_rollout"] = best[key] / res[rkey]
+    per_period = best["physics_control_ms_per_period"] / 1e3
+    res["headroom_planning_ms_per_period_at_5x"] = 1e3 * (PERIOD_S / 5.0 - per_period)
+    res["headroom_planning_ms_per_period_at_5x_in_scan"] = 1e3 * (
+        PERIOD_S / 5.0 - PERIOD_S / best["physics_control_rtf_in_scan"])
+    for k in sorted(res):
+        if k != "layouts":
+            v = res[k]
+            print(f"{k:50s} {v:.4g}" if isinstance(v, float) else f"{k:50s} {v}")
+    if json_path:
+        with open(json_path, "w") as f:
+            json.dump(res, f, indent=2)
+    return res
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args(argv)
+    run(a.json, quick=a.quick)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,265 @@
+"""Tests of jaxplan.sim.fleet: the MJX closed loop that tracks the planner's plans.
+
+One 3-vehicle mixed fleet (hummingbird, firefly, neo11), 500 Hz physics, 250 Hz
+control, 8 Hz periods (31.25 control ticks: periods of 32 and 31 ticks alternate) is
+shared by most tests so that ``simulate_period`` compiles once for them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import jaxplan  # noqa: F401  (x64)
+from jaxplan.sim import fleet, se3
+from jaxplan.sim import model as sm
+from jaxplan.trajectory import Trajectory
+
+NAMES = ["hummingbird", "firefly", "neo11"]
+START = np.array([[0.0, 0.0, 1.0], [0.0, 2.0, 1.5], [0.0, 4.0, 2.0]])
+PERIOD = 0.125
+HZ_C, HZ_P = 250.0, 500.0
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return fleet.init_sim(NAMES, START)
+
+
+def min_jerk(p0, p1, peak_speed=2.0):
+    """Straight min-jerk (quintic) lines p0 -> p1 (M, 3) at the given peak speed, m/s."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    L = p1 - p0
+    T = 1.875 * np.linalg.norm(L, axis=1) / peak_speed
+    c = np.zeros((len(p0), 1, 3, 6))
+    c[:, 0, :, 0] = p0
+    c[:, 0, :, 3], c[:, 0, :, 4], c[:, 0, :, 5] = 10 * L, -15 * L, 6 * L
+    return Trajectory.from_normalized(jnp.asarray(c), jnp.asarray(T))
+
+
+def run_periods(sim_model, state, plans, n_periods, t_offset=None):
+    """n periods of one plan that started at tick 0; returns (state, list of records)."""
+    recs = []
+    for _ in range(n_periods):
+        t0 = fleet.sim_time(sim_model, state) if t_offset is None else t_offset(state)
+        state, rec = fleet.simulate_period(sim_model, state, plans, t0, PERIOD)
+        recs.append(jax.tree.map(np.asarray, rec))
+    return state, recs
+
+
+def concat(recs, field):
+    """Valid samples of a (M, K, ...) record field over periods: (M, sum K, ...)."""
+    return np.concatenate([getattr(r, field)[:, r.valid] for r in recs], axis=1)
+
+
+# ----------------------------------------------------------------------------- hover, grid
+
+
+def test_hover_mixed_fleet(sim):
+    model, state = sim
+    state, recs = run_periods(model, state, Trajectory.hold(jnp.asarray(START)), 16)
+    assert int(state.tick) == 500                       # 2 s exactly: the period grid holds
+    assert [int(r.valid.sum()) for r in recs[:4]] == [32, 31, 31, 31]
+    t = np.concatenate([r.t[r.valid] for r in recs])
+    np.testing.assert_allclose(t, np.arange(500) / HZ_C, atol=1e-12)   # uniform 250 Hz
+    pos = concat(recs, "pos")
+    assert np.abs(pos - START[:, None, :]).max() < 1e-3
+    p, v, a = (np.asarray(x) for x in fleet.measured_state(model, state))
+    assert np.abs(p - START).max() < 1e-3 and np.abs(v).max() < 1e-3 and np.abs(a).max() < 1e-3
+    assert all(r.saturated.sum() == 0 and r.bad_reference.sum() == 0 for r in recs)
+    assert not any(r.nonfinite.any() for r in recs)
+
+
+# ----------------------------------------------------------------------------- tracking
+
+
+def test_tracking_min_jerk_each_kind(sim):
+    """3 m straight lines at a 2 m/s peak speed (2.2 m/s^2 peak acceleration), one per
+    vehicle kind, in different directions."""
+    model, state = sim
+    goal = START + np.array([[3.0, 0.0, 0.0], [-1.5, 1.5, 2.0], [2.0, -2.0, -0.7]])
+    goal = START + (goal - START) * (3.0 / np.linalg.norm(goal - START, axis=1))[:, None]
+    plans = min_jerk(START, goal)
+    state, recs = run_periods(model, state, plans, 28)     # 3.5 s, the plans last 2.81 s
+    err = concat(recs, "track_err")
+    rms, mx = np.sqrt((err**2).mean(axis=1)), err.max(axis=1)
+    # measured (hummingbird / firefly / neo11): rms 1.2 / 1.3 / 2.9 cm, max 2.1 / 2.4 / 5.1 cm
+    assert np.all(rms <= 0.05) and np.all(mx <= 0.15), (rms, mx)
+    vel = concat(recs, "vel")
+    assert np.linalg.norm(vel, axis=-1).max() > 1.9          # it really flew at ~2 m/s
+    p, v, _ = fleet.measured_state(model, state)
+    assert np.abs(np.asarray(p) - goal).max() < 0.03   # measured 1.7 cm, 0.7 s after the end
+    assert sum(int(r.saturated.sum()) for r in recs) == 0
+
+
+# ----------------------------------------------------------------------------- C engine
+
+
+def c_reference(plans, n_periods, names=NAMES, start=START, physics_hz=HZ_P, control_hz=HZ_C):
+    """The same closed loop in the MuJoCo C engine (mj_step), independent of fleet.py.
+
+    Returns (per-tick (qpos, qvel, qacc) before control, positions after every physics
+    step (P+1, M, 3) including the start, period boundaries in ticks).
+    """
+    M = len(names)
+    m = sm.fleet_model(names, start, timestep=1.0 / physics_hz, visual=False)
+    d = mujoco.MjData(m)
+    params = se3.fleet_params(names)
+    zero = jnp.zeros(M)
+
+    @jax.jit
+    def control(qp, qv, t):
+        ref = se3.Reference(plans.evaluate(t, 0), plans.evaluate(t, 1), plans.evaluate(t, 2),
+                            plans.evaluate(t, 3), zero, zero)
+        out = se3.fleet_control(params, sm.fleet_state(qp, qv), ref)
+        return out.thrust, out.moments
+
+    per = PERIOD * control_hz
+    bounds = [math.ceil(p * per - 1e-9) for p in range(n_periods + 1)]
+    sub = int(round(physics_hz / control_hz))
+    ticks, phys = [], [d.qpos.reshape(M, 7)[:, :3].copy()]
+    for k in range(bounds[-1]):
+        ticks.append((d.qpos.copy(), d.qvel.copy(), d.qacc.copy()))
+        f, mom = control(d.qpos, d.qvel, k / control_hz)
+        d.ctrl[:] = sm.fleet_ctrl(np.asarray(f), np.asarray(mom))
+        for _ in range(sub):
+            mujoco.mj_step(m, d)
+            phys.append(d.qpos.reshape(M, 7)[:, :3].copy())
+    return ticks, np.array(phys), bounds, sub
+
+
+def brute_force_min(positions):
+    """(M, M) min over the first axis of pairwise centre distances, inf on the diagonal."""
+    d = np.linalg.norm(positions[:, :, None, :] - positions[:, None, :, :], axis=-1).min(0)
+    np.fill_diagonal(d, np.inf)
+    return d
+
+
+def test_matches_c_engine_and_pairwise_minimum(sim):
+    """Vehicles 0 and 1 cross (closest 0.160 m at physics rate, 0.161 m at tick rate),
+    vehicle 2 climbs; 1 s = 8 periods."""
+    model, state = sim
+    goal = np.array([[0.0, 3.0, 1.6], [0.3, -0.5, 1.0], [0.0, 4.0, 4.0]])
+    plans = min_jerk(START, goal, peak_speed=3.0)
+    n = 8
+    state, recs = run_periods(model, state, plans, n)
+    ticks, phys, bounds, sub = c_reference(plans, n)
+    # record samples = the C state at the start of every tick
+    qp_c = np.array([t[0] for t in ticks]).reshape(len(ticks), 3, 7)
+    qv_c = np.array([t[1] for t in ticks]).reshape(len(ticks), 3, 6)
+    qa_c = np.array([t[2] for t in ticks]).reshape(len(ticks), 3, 6)
+    pos, vel, acc = (concat(recs, f) for f in ("pos", "vel", "acc"))
+    assert pos.shape[1] == len(ticks) == bounds[-1]
+    err = max(np.abs(pos - qp_c[:, :, :3].transpose(1, 0, 2)).max(),
+              np.abs(vel - qv_c[:, :, :3].transpose(1, 0, 2)).max())
+    assert err < 1e-6, err                          # measured: 1.1e-15
+    assert np.abs(acc - qa_c[:, :, :3].transpose(1, 0, 2)).max() < 1e-6
+    vs = fleet.vehicle_states(model, state)
+    assert np.abs(np.asarray(vs.position) - phys[-1]).max() < 1e-6
+    # the pairwise minimum over every physics state of each period
+    for p, r in enumerate(recs):
+        seg = phys[bounds[p] * sub: bounds[p + 1] * sub + 1]
+        np.testing.assert_allclose(r.min_dist, brute_force_min(seg), rtol=0, atol=1e-9)
+    overall = np.min([r.min_dist for r in recs], axis=0)
+    assert overall[0, 1] < 0.5                       # they did come close
+    # physics rate matters: the tick-rate samples miss the true minimum
+    assert brute_force_min(pos.transpose(1, 0, 2))[0, 1] > overall[0, 1]
+
+
+# ----------------------------------------------------------------------------- bad plans
+
+
+def test_nan_plan_never_reaches_controller(sim):
+    model, state = sim
+    goal = START + np.array([[2.0, 0.0, 0.0], [2.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    good = min_jerk(START, goal)
+    bad_coeffs = good.coeffs.at[1, 0, 2, 3].set(jnp.nan)   # vehicle 1: NaN in z
+    bad = good._replace(coeffs=bad_coeffs)
+    # two good periods, then 1.5 s with vehicle 1's plan NaN and vehicle 2's plan time NaN
+    state, recs = run_periods(model, state, good, 2)
+    held = recs[-1].ref_pos[1, recs[-1].valid][-1]           # vehicle 1's last good reference
+    t_nan = lambda st: jnp.asarray([fleet.sim_time(model, st), fleet.sim_time(model, st), jnp.nan])
+    state, recs2 = run_periods(model, state, bad, 12, t_offset=t_nan)
+    n_ticks = sum(int(r.valid.sum()) for r in recs2)
+    bad_ref = sum(r.bad_reference for r in recs2)
+    assert bad_ref.tolist() == [0, n_ticks, n_ticks]
+    for r in recs2:
+        assert np.all(np.isfinite(r.ref_pos)) and np.all(np.isfinite(r.pos))
+        assert not r.nonfinite.any()
+        held_k = np.broadcast_to(held, (r.valid.sum(), 3))
+        np.testing.assert_array_equal(r.ref_pos[1][r.valid], held_k)
+    for leaf in jax.tree.leaves(state):
+        assert np.all(np.isfinite(np.asarray(leaf)))
+    p, v, _ = (np.asarray(x) for x in fleet.measured_state(model, state))
+    # vehicle 1 brakes (it was accelerating at 2.9 m/s^2) and turns back to the hold point
+    dist = np.linalg.norm(concat(recs2, "pos")[1] - held, axis=-1)
+    speed = np.linalg.norm(concat(recs2, "vel")[1], axis=-1)
+    assert dist.max() < 0.5 and dist[-1] < 0.5 * dist.max()   # measured: 0.31 m, then 0.04 m
+    assert speed[-1] < 0.5 * speed.max()                       # measured: 0.78 m/s, then 0.16
+    assert np.linalg.norm(p[0] - START[0]) > 0.3              # vehicle 0 kept flying its plan
+
+
+# ----------------------------------------------------------------------------- batching, layout
+
+
+LAYOUT_GOAL = START + np.array([[1.0, 0.5, 0.2], [-1.0, 0.0, 0.5], [0.5, -1.0, -0.3]])
+
+
+def test_worlds_vmap(sim):
+    """A world axis (vmap) gives the same result as separate calls."""
+    model, state0 = sim
+    goal = LAYOUT_GOAL
+    plans = min_jerk(START, goal)
+    shift = np.array([0.0, 0.0, 0.5])
+    starts = jnp.asarray(np.stack([START, START + shift]))
+    plans_w = jax.tree.map(lambda *x: jnp.stack(x), plans, min_jerk(START + shift, goal + shift))
+    states = jax.vmap(lambda p: fleet.initial_state(model, p))(starts)
+    step_w = jax.jit(jax.vmap(lambda s, p: fleet.simulate_period(model, s, p, 0.0, PERIOD)))
+    st_w, rec_w = step_w(states, plans_w)
+    st_1, rec_1 = fleet.simulate_period(model, state0, plans, 0.0, PERIOD)
+    np.testing.assert_allclose(rec_w.pos[0], rec_1.pos, atol=1e-12)
+    np.testing.assert_allclose(rec_w.pos[1], np.asarray(rec_1.pos) + shift, atol=1e-9)
+    np.testing.assert_allclose(rec_w.min_dist[0], rec_1.min_dist, atol=1e-12)
+
+
+@pytest.mark.slow   # one more compilation (~20 s on the 2-core CPU)
+def test_fleet_layout_matches_vmap_layout(sim):
+    """The "fleet" layout (one MJX model holding all bodies) flies exactly like the
+    default "vmap" layout (one small model per vehicle)."""
+    model, state0 = sim
+    plans = min_jerk(START, LAYOUT_GOAL)
+    st_1, rec_1 = fleet.simulate_period(model, state0, plans, 0.0, PERIOD)
+    model_f, state_f = fleet.init_sim(NAMES, START, layout="fleet")
+    st_f, rec_f = fleet.simulate_period(model_f, state_f, plans, 0.0, PERIOD)
+    for f in ("pos", "vel", "acc", "track_err", "min_dist"):
+        np.testing.assert_allclose(getattr(rec_f, f), getattr(rec_1, f), atol=1e-12, err_msg=f)
+    np.testing.assert_allclose(fleet.measured_state(model_f, st_f)[0],
+                               fleet.measured_state(model, st_1)[0], atol=1e-12)
+
+
+@pytest.mark.slow
+def test_motor_lag_hover_and_tracking():
+    """With the RotorS motor lag (12.5-25 ms) the fleet still hovers and tracks."""
+    model, state = fleet.init_sim(NAMES, START, motor_lag=True)
+    goal = START + np.array([[3.0, 0.0, 0.0], [0.0, 0.0, 3.0], [0.0, -3.0, 0.0]])
+    state, recs = run_periods(model, state, min_jerk(START, goal), 28)
+    err = concat(recs, "track_err")
+    assert np.sqrt((err**2).mean()) < 0.05 and err.max() < 0.15, err.max(axis=1)
+
+
+def test_init_errors():
+    with pytest.raises(ValueError, match="unknown vehicle"):
+        fleet.init_sim(["blimp"], [[0, 0, 1]])
+    with pytest.raises(ValueError, match="whole number"):
+        fleet.init_sim(["firefly"], [[0, 0, 1]], physics_hz=500, control_hz=300)
+    with pytest.raises(ValueError, match=">= 100"):
+        fleet.init_sim(["firefly"], [[0, 0, 1]], physics_hz=500, control_hz=50)
+    with pytest.raises(ValueError, match="layout"):
+        fleet.init_sim(["firefly"], [[0, 0, 1]], layout="big")
+    with pytest.raises(ValueError, match="start_positions"):
+        fleet.init_sim(["firefly", "neo11"], [[0, 0, 1]])
