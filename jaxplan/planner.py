@@ -6,6 +6,8 @@ default every view is fresh (:func:`fresh_views`); the structure also carries an
 and a validity flag so that stale or missing messages can be injected.
 
 From its view each robot predicts the others in closed form (:mod:`jaxplan.predict`),
+advanced by the age of the message it came from; a stale sender's radius is inflated by
+how far it could have moved since (its v_max times the age, at most MAX_INFLATION);
 builds its NLP (:mod:`jaxplan.costs`) and solves it; all robots' NLPs are solved in one
 vmapped call (:mod:`jaxplan.solver`).  Warm start: the robot's previous plan shifted by
 the replan period; the first plan starts from its own prediction.
@@ -31,6 +33,8 @@ from jaxplan import solver as slv
 from jaxplan.costs import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.predict import _quintic_terms, predict_arrays
 from jaxplan.trajectory import Trajectory, _compose_matrix
+
+MAX_INFLATION = 2.0  # m: a stale sender's radius grows by v_max * age, at most this much
 
 # fallback kinds in ReplanInfo.fallback
 ACCEPTED, KEPT_PREVIOUS, BRAKING = 0, 1, 2
@@ -182,13 +186,16 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     """
     M = p.shape[0]
     nlp = structure.nlp
-    preds = predict_views(views, fp.prediction_weight)  # batch (M, M)
+    # predictions from each view, advanced to now by the message's age
+    preds = predict_views(views, fp.prediction_weight).shift(views.age)  # batch (M, M)
+    # stale information: inflate the other's radius by how far it could have moved since
+    inflate = jnp.minimum(fp.limits.v_max * views.age, MAX_INFLATION)
     eye = jnp.eye(M, dtype=bool)
     other_mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
     limits_i = Limits(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
     params = NLPParams(
         p0=p, v0=v, a0=a, goal_p=goal_p, goal_v=goal_v, goal_a=jnp.zeros_like(p), rest=rest,
-        others=preds, other_radius=jnp.broadcast_to(fp.radius, (M, M)), other_mask=other_mask,
+        others=preds, other_radius=fp.radius[None, :] + inflate, other_mask=other_mask,
         radius=fp.radius, weights=jax.tree.map(lambda w: jnp.broadcast_to(w, (M,)), fp.weights),
         limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
     )
