@@ -89,7 +89,7 @@ DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes 
 DEFAULT_BACKEND = "ideal"
 DEFAULT_DURATION_S = 30.0
 DEFAULT_PHYSICS_HZ = 500.0
-DEFAULT_CONTROL_HZ = 100.0
+DEFAULT_CONTROL_HZ = 250.0
 DEFAULT_GOAL_TOLERANCE_M = 0.1
 DEFAULT_GOAL_SPEED_TOLERANCE_MPS = 0.1   # residual speed allowed at a rest goal
 

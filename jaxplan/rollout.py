@@ -151,14 +151,29 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     # goal checks along the executed period
     C = structure.checks_per_period
     tau = dt * jnp.arange(1, C + 1) / C  # (C,)
-    ps = plan.sample(tau)  # (M, C, N)
-    vs = plan.sample(tau, 1)
-    dist = jnp.linalg.norm(ps - goal_p[:, None, :], axis=-1)
-    speed = jnp.linalg.norm(vs, axis=-1)
+    reached, reach_time, wp = goal_update(
+        fp, task, st, goal_p, plan.sample(tau), jnp.linalg.norm(plan.sample(tau, 1), axis=-1),
+        st.t + tau, jnp.ones((C,), bool))
+    rec = StepRecord(st.t, st.p, st.v, st.a, pt0, pt1, pc, st.wp, info)
+    new = RolloutState(st.t + dt, p1, v1, a1, plans, wp, reached, reach_time)
+    return new, rec
+
+
+def goal_update(fp: FleetParams, task: Task, st: RolloutState, goal_p, pos, speed, times,
+                valid):
+    """Reached flags, reach times and the published waypoint after a period.
+
+    Args: goal_p (M, N); pos (M, C, N) and speed (M, C) at C instants ``times`` (C,)
+    of the period (``valid`` (C,) masks instants that did not happen).
+    Returns: (reached (M, W), reach_time (M, W), wp ()).
+    """
+    M = st.p.shape[0]
+    dist = jnp.linalg.norm(pos - goal_p[:, None, :], axis=-1)
     rest_now = task.rest[jnp.arange(M), st.wp]
     ok = (dist <= task.goal_tolerance) & (~rest_now[:, None] | (speed <= task.speed_tolerance))
+    ok = ok & valid[None, :]
     hit = jnp.any(ok, axis=1)
-    first = st.t + tau[jnp.argmax(ok, axis=1)]
+    first = times[jnp.argmax(ok, axis=1)]
     W = task.waypoints.shape[1]
     col = jnp.arange(W)[None, :] == st.wp
     new_hit = col & hit[:, None] & ~st.reached
@@ -168,9 +183,7 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     reached = reached | ~fp.robot_mask[:, None]
     all_here = jnp.all(reached[:, st.wp])
     wp = jnp.where(all_here & (st.wp < W - 1), st.wp + 1, st.wp).astype(jnp.int32)
-    rec = StepRecord(st.t, st.p, st.v, st.a, pt0, pt1, pc, st.wp, info)
-    new = RolloutState(st.t + dt, p1, v1, a1, plans, wp, reached, reach_time)
-    return new, rec
+    return reached, reach_time, wp
 
 
 def initial_state(task: Task, structure: RolloutStructure) -> RolloutState:
