@@ -41,6 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("config", type=Path, help="sweep TOML file (with a [sweep] table)")
     s.add_argument("--out", type=Path, default=None,
                    help="sweep directory (default: sweeps/<name>)")
+    s.add_argument("--batch", type=int, default=None,
+                   help="runs per batched computation (default 27)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     pl = sub.add_parser("plot", help="(re)draw a run directory's figures")
     pl.add_argument("run_dir", type=Path)
@@ -146,10 +148,15 @@ def _cmd_scenarios(args) -> int:
 
 def _cmd_sweep(args) -> int:
     cfg = _load(args.config)
-    from jaxplan.sweep import run_sweep
+    from jaxplan.sweep import SweepError, run_sweep
 
+    if args.batch is not None and args.batch < 1:
+        raise _Fail(f"--batch must be >= 1, got {args.batch}")
     out = args.out or Path("sweeps") / cfg.name
-    run_sweep(cfg, out, progress=not args.quiet)
+    try:
+        run_sweep(cfg, out, progress=not args.quiet, batch_size=args.batch)
+    except SweepError as e:
+        raise _Fail(str(e)) from None
     return 0
 
 

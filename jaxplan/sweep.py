@@ -1,0 +1,633 @@
+"""Weight x seed x scenario grids, batched and resumable (DESIGN.md "A sweep directory").
+
+    run_sweep(config, out_dir, *, progress=True, batch_size=None, figures=True)
+        -> SweepResult
+    sweep_points(config) -> list[SweepPoint]          the whole grid, in run order
+    read_sweep_csv(path) -> (rows, info)              complete rows of a sweep.csv
+    COLUMNS, KEY_COLUMNS                              sweep.csv's header and row key
+
+The grid is ``[sweep] q_obs x q_lim x seeds x scenarios`` (``scenarios`` empty: the
+config's own fleet, named by its ``[scenario] kind`` or, with ``[[robots]]``, by the
+config's name; ``scenarios`` given: those registry scenarios, built with their
+defaults and the config's [limits], instead of the config's fleet).  The seed seeds
+the scenario (the paper scenarios' jitter, the generators' draws); every run lasts
+``sim.duration_s`` under the ideal backend.
+
+Batches.  The grid is cut into batches of ``batch_size`` runs (default
+:data:`DEFAULT_BATCH`, or the environment variable ``JAXPLAN_SWEEP_BATCH``); one batch
+is one call of one compiled program: :func:`jaxplan.rollout.rollout_batch`, vmapped
+over runs, with the weights (and every other fleet parameter) as traced batched
+inputs.  The last batch is padded by repeating its last run (the duplicates are
+dropped), so every batch has the same shape and the planner compiles once per shape
+group.  Scenarios of different robot counts share one shape: smaller fleets are padded
+to the largest with masked robots (``FleetParams.robot_mask``) parked far away, which
+the planner never plans for and no robot sees.  Scenarios that differ in the number of
+waypoints or of spatial dimensions form separate shape groups (one compilation each).
+Compilations of the batch program are counted from JAX's own compile events
+(``jax.monitoring``) and printed (``compilations: 1`` for a one-group grid).
+
+Resuming.  Rows are keyed by (q_obs, q_lim, scenario, seed), the weights written with
+Python's ``repr`` (exact round trip).  After each batch its rows are appended to
+sweep.csv as complete lines in one write, then fsync'ed, so a kill (even SIGKILL)
+loses at most the batch in flight.  Re-running the same command reads sweep.csv,
+drops a trailing partial line (a kill mid-write) and skips every finished key.  The
+resolved config is kept in ``config.toml``; a sweep directory made with a different
+config (anything but ``[sweep]``, the name and the description) is refused
+(:class:`SweepError`), so rows of two different planners are never mixed.  Growing the
+grid in the same directory is fine: only the new points run.
+
+Columns (:data:`COLUMNS`): the key, then success (1/0), collisions,
+min_separation_ratio, makespan_s (empty: not every robot reached its last waypoint),
+mean_time_to_goal_s (mean over the robots that reached their last waypoint),
+reached_frac (robots that reached their last waypoint), waypoints_frac (waypoints
+reached / waypoints, mean over robots: progress through a multi-transition scenario),
+peak_speed_ratio (max speed / v_max, max over robots), converged_frac,
+iterations_median, fallbacks_kept_previous, fallbacks_braking, robots, duration_s,
+replans, error (empty unless the run's metrics could not be computed).  Solver timing
+per replan is not measured in sweeps (one batch is one program).
+
+Figures (``figures/``, :func:`jaxplan.plots.plot_sweep`): heatmaps of success rate,
+minimum separation ratio and makespan over the grid; the best setting
+(:func:`jaxplan.plots.best_setting`) is printed.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+import os
+import sys
+import threading
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from jaxplan import scenarios as _sc
+from jaxplan.config import Config, build_scenario, config_to_toml
+from jaxplan.costs import Weights
+from jaxplan.experiment import compute_metrics, fleet_params, structures, task_of
+from jaxplan.results import atomic_write_text
+from jaxplan.rollout import RolloutStructure, Task, rollout_batch
+from jaxplan.scenarios import Scenario
+
+__all__ = [
+    "COLUMNS",
+    "KEY_COLUMNS",
+    "DEFAULT_BATCH",
+    "SweepError",
+    "SweepPoint",
+    "SweepResult",
+    "run_sweep",
+    "sweep_points",
+    "read_sweep_csv",
+    "row_key",
+]
+
+KEY_COLUMNS = ("q_obs", "q_lim", "scenario", "seed")
+COLUMNS = KEY_COLUMNS + (
+    "success", "collisions", "min_separation_ratio", "makespan_s", "mean_time_to_goal_s",
+    "reached_frac", "waypoints_frac", "peak_speed_ratio", "converged_frac", "iterations_median",
+    "fallbacks_kept_previous", "fallbacks_braking", "robots", "duration_s", "replans",
+    "error",
+)
+DEFAULT_BATCH = 27  # runs per batch (a 9 x 9 x 3 grid: 9 batches)
+BATCH_ENV = "JAXPLAN_SWEEP_BATCH"
+PARK_DISTANCE = 1.0e4  # m: where padding robots are parked
+PARK_SPACING = 10.0  # m between parked padding robots
+_PROGRAM = "jaxplan_sweep_batch"  # the batch program's name in JAX's compile events
+
+
+class SweepError(ValueError):
+    """A sweep that cannot run or resume (one line, naming the file)."""
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One run of the grid: weights, scenario label, seed."""
+
+    q_obs: float
+    q_lim: float
+    scenario: str
+    seed: int
+
+    @property
+    def key(self) -> tuple[str, str, str, str]:
+        return _key(self.q_obs, self.q_lim, self.scenario, self.seed)
+
+
+def _key(q_obs, q_lim, scenario, seed) -> tuple[str, str, str, str]:
+    return (repr(float(q_obs)), repr(float(q_lim)), str(scenario), str(int(seed)))
+
+
+def row_key(row: dict) -> tuple[str, str, str, str]:
+    """The key (repr q_obs, repr q_lim, scenario, seed) of a csv row (a dict of strings)."""
+    return _key(float(row["q_obs"]), float(row["q_lim"]), row["scenario"], int(row["seed"]))
+
+
+@dataclass
+class SweepResult:
+    """What :func:`run_sweep` did.
+
+    out: the sweep directory; csv: its sweep.csv.  total: grid points; skipped: already
+    in sweep.csv; ran: run now.  batches: batches run; batch_size: runs per batch.
+    compilations: compilations of the batch program (JAX compile events).
+    compile_s, run_s, wall_s: seconds.  best: :func:`jaxplan.plots.best_setting`'s dict
+    (None without rows).  figures: the heatmap paths.
+    """
+
+    out: Path
+    csv: Path
+    total: int
+    skipped: int
+    ran: int
+    batches: int
+    batch_size: int
+    compilations: int
+    compile_s: float
+    run_s: float
+    wall_s: float
+    best: dict | None
+    figures: list
+
+
+# ------------------------------------------------------------------------ the grid
+
+
+@dataclass(frozen=True)
+class _ScenarioSource:
+    label: str
+    build: Callable[[int], Scenario]
+
+
+def _sources(config: Config) -> list[_ScenarioSource]:
+    sw = config.sweep
+    if not sw.scenarios:
+        if config.scenario is not None and not config.robots:
+            label = config.scenario.kind
+        else:
+            label = config.name
+        return [_ScenarioSource(
+            label, lambda s: build_scenario(dataclasses.replace(config, seed=int(s))))]
+    lim = config.limits
+
+    def builder(name):
+        def build(seed):
+            return _sc.build(name, seed=int(seed)).with_limits(lim.v_max, lim.a_max,
+                                                                lim.j_max)
+        return build
+
+    return [_ScenarioSource(n, builder(n)) for n in dict.fromkeys(sw.scenarios)]
+
+
+def sweep_points(config: Config) -> list[SweepPoint]:
+    """The whole grid of a config's [sweep], in run order: scenario, q_obs, q_lim, seed."""
+    sw = config.sweep
+    return [SweepPoint(float(qo), float(ql), src.label, int(s))
+            for src in _sources(config)
+            for qo in dict.fromkeys(sw.q_obs)
+            for ql in dict.fromkeys(sw.q_lim)
+            for s in dict.fromkeys(sw.seeds)]
+
+
+# ------------------------------------------------------------------------ sweep.csv
+
+
+@dataclass
+class CsvInfo:
+    """What :func:`read_sweep_csv` found: complete rows kept, a trailing partial line
+    dropped (bytes), malformed or duplicate rows dropped."""
+
+    kept: int = 0
+    partial_bytes: int = 0
+    malformed: int = 0
+    duplicates: int = 0
+
+    @property
+    def clean(self) -> bool:
+        return not (self.partial_bytes or self.malformed or self.duplicates)
+
+
+def read_sweep_csv(path) -> tuple[list[dict], CsvInfo]:
+    """The complete rows of a sweep.csv (dicts of strings, first occurrence per key).
+
+    A trailing line without its newline (a kill mid-write) is dropped, and so are rows
+    with the wrong number of fields or an unreadable key.  Raises SweepError when the
+    header is not :data:`COLUMNS`.  A missing or empty file has no rows.
+    """
+    path = Path(path)
+    info = CsvInfo()
+    if not path.exists():
+        return [], info
+    data = path.read_bytes()
+    end = data.rfind(b"\n") + 1
+    info.partial_bytes = len(data) - end
+    text = data[:end].decode("utf-8", errors="replace")
+    lines = list(csv.reader(io.StringIO(text, newline="")))
+    if not lines:
+        return [], info
+    header = tuple(lines[0])
+    if header != COLUMNS:
+        raise SweepError(f"{path}: columns {', '.join(header)} are not this version's "
+                         f"({', '.join(COLUMNS)}); use another --out")
+    rows, seen = [], set()
+    for fields in lines[1:]:
+        if len(fields) != len(COLUMNS):
+            info.malformed += 1
+            continue
+        row = dict(zip(COLUMNS, fields, strict=True))
+        try:
+            k = row_key(row)
+        except (ValueError, TypeError):
+            info.malformed += 1
+            continue
+        if k in seen:
+            info.duplicates += 1
+            continue
+        seen.add(k)
+        rows.append(row)
+    info.kept = len(rows)
+    return rows, info
+
+
+def _csv_text(rows: list[dict], header: bool = False) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    if header:
+        w.writerow(COLUMNS)
+    for r in rows:
+        w.writerow([r.get(c, "") for c in COLUMNS])
+    return buf.getvalue()
+
+
+def _append(path: Path, text: str) -> None:
+    """Append complete lines in one write, then fsync (a kill leaves at most a partial
+    trailing line, which :func:`read_sweep_csv` drops)."""
+    data = text.encode("utf-8")
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            n = os.write(fd, view)
+            view = view[n:]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fmt(x) -> str:
+    if x is None:
+        return ""
+    if isinstance(x, (bool, np.bool_)):
+        return "1" if x else "0"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    x = float(x)
+    return repr(x) if math.isfinite(x) else ""
+
+
+def _row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
+         error: str = "") -> dict:
+    row = {"q_obs": repr(float(point.q_obs)), "q_lim": repr(float(point.q_lim)),
+           "scenario": point.scenario, "seed": str(point.seed)}
+    if metrics is None:
+        row.update(success="0", error=error)
+        return row
+    pr = metrics["per_robot"]
+    ttg = [r["time_to_goal_s"] for r in pr if r["reached"] and r["time_to_goal_s"] is not None]
+    row.update({
+        "success": _fmt(bool(metrics["success"])),
+        "collisions": _fmt(int(metrics["collisions"])),
+        "min_separation_ratio": _fmt(metrics["min_separation_ratio"]),
+        "makespan_s": _fmt(metrics["makespan_s"]),
+        "mean_time_to_goal_s": _fmt(float(np.mean(ttg)) if ttg else None),
+        "reached_frac": _fmt(float(np.mean([r["reached"] for r in pr]))),
+        "waypoints_frac": _fmt(float(np.mean([r["waypoints_reached"] for r in pr]))
+                               / max(1, n_waypoints)),
+        "peak_speed_ratio": _fmt(metrics["peak_speed_over_limit"]),
+        "converged_frac": _fmt(metrics["solver"].get("converged_frac")),
+        "iterations_median": _fmt(metrics["solver"].get("iterations_median")),
+        "fallbacks_kept_previous": _fmt(int(metrics["fallbacks"]["kept_previous"])),
+        "fallbacks_braking": _fmt(int(metrics["fallbacks"]["braking"])),
+        "robots": _fmt(int(metrics["robots"])),
+        "duration_s": _fmt(metrics["duration_s"]),
+        "replans": _fmt(int(metrics["replans"])),
+        "error": error,
+    })
+    return row
+
+
+# ------------------------------------------------------------------------ config guard
+
+_FREE_TABLES = ("sweep", "name", "description")
+
+
+def _guard_config(out: Path, config: Config) -> None:
+    """Keep config.toml; refuse a directory made with a different config."""
+    path = out / "config.toml"
+    text = config_to_toml(config)
+    if path.exists():
+        try:
+            old = tomllib.loads(path.read_text("utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+            raise SweepError(f"{path}: unreadable ({e}); use another --out") from None
+        new = tomllib.loads(text)
+        strip = lambda d: {k: v for k, v in d.items() if k not in _FREE_TABLES}  # noqa: E731
+        if strip(old) != strip(new):
+            diff = sorted(k for k in set(strip(old)) | set(strip(new))
+                          if strip(old).get(k) != strip(new).get(k))
+            raise SweepError(f"{path}: this sweep directory was made with a different config "
+                             f"(differs in: {', '.join(diff)}); use another --out")
+    atomic_write_text(path, text)
+
+
+# ------------------------------------------------------------------------ batches
+
+
+class _Prepared(NamedTuple):
+    """One grid point's traced inputs, padded to the group's robot count."""
+
+    point: SweepPoint
+    scenario: Scenario
+    fp: object  # FleetParams
+    task: Task
+
+
+def _weights(config: Config, q_obs: float, q_lim: float) -> Weights:
+    pc = config.planner
+    return Weights(*(np.asarray(float(x)) for x in
+                     (pc.q_dynm, q_obs, q_lim, pc.k_t, pc.k_p)))
+
+
+def _pad_robots(fp, task: Task, m_pad: int):
+    """Pad a fleet to m_pad robots: masked, parked far apart and far away, at rest."""
+    M, W, N = np.shape(task.waypoints)
+    extra = m_pad - M
+    if extra == 0:
+        return fp, task
+    park = np.zeros((extra, N))
+    park[:, 0] = PARK_DISTANCE + PARK_SPACING * np.arange(extra)
+    park[:, -1] = PARK_DISTANCE
+
+    def cat(x, fill):
+        x = np.asarray(x)
+        return np.concatenate([x, np.broadcast_to(fill, (extra,) + x.shape[1:])], axis=0)
+
+    task = task._replace(
+        start=np.concatenate([np.asarray(task.start), park]),
+        waypoints=np.concatenate([np.asarray(task.waypoints),
+                                  np.repeat(park[:, None, :], W, axis=1)]),
+        rest=cat(task.rest, True),
+        goal_velocity=cat(task.goal_velocity, 0.0),
+    )
+    lim = fp.limits
+    fp = fp._replace(
+        limits=type(lim)(*(cat(x, np.asarray(x)[0]) for x in lim)),
+        radius=cat(fp.radius, np.asarray(fp.radius)[0]),
+        robot_mask=cat(fp.robot_mask, False),
+    )
+    return fp, task
+
+
+def _stack(items):
+    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *items)
+
+
+def _batch_program(fp, task, structure: RolloutStructure):
+    final, records = rollout_batch(fp, task, structure, fp_axis=0)
+    return (final.reached, final.reach_time), records
+
+
+_batch_program.__name__ = _PROGRAM
+_batch_program.__qualname__ = _PROGRAM
+_batch_jit = jax.jit(_batch_program, static_argnames=("structure",))
+
+
+class _CompileCounter:
+    """Counts JAX backend compilations of the batch program (jax.monitoring events)."""
+
+    _lock = threading.Lock()
+    _installed = False
+    counts: dict[str, int] = {}
+
+    @classmethod
+    def install(cls) -> None:
+        with cls._lock:
+            if cls._installed:
+                return
+            from jax import monitoring
+
+            def listener(event, duration, **kw):
+                if event == "/jax/core/compile/backend_compile_duration":
+                    name = str(kw.get("fun_name", ""))
+                    key = _PROGRAM if _PROGRAM in name else "other"
+                    cls.counts[key] = cls.counts.get(key, 0) + 1
+
+            monitoring.register_event_duration_secs_listener(listener)
+            cls._installed = True
+
+    @classmethod
+    def get(cls, key: str = _PROGRAM) -> int:
+        return cls.counts.get(key, 0)
+
+
+class _View(NamedTuple):
+    reached: np.ndarray
+    reach_time: np.ndarray
+
+
+def _run_metrics(config: Config, prep: _Prepared, records, final: _View, b: int):
+    """Metrics of lane b (unpadded robots) -> a csv row."""
+    M = prep.scenario.num_robots
+
+    def lane(x):
+        x = x[b]
+        return x[:, :M] if x.ndim >= 2 else x
+
+    rec = jax.tree.map(lane, records)
+    fin = _View(final.reached[b, :M], final.reach_time[b, :M])
+    try:
+        metrics, _ = compute_metrics(config, prep.scenario, rec, fin, np.empty(0))
+    except Exception as e:  # one bad run never stops the sweep
+        msg = f"{type(e).__name__}: {e}".replace("\n", " ")[:200]
+        return _row(prep.point, None, error=msg)
+    return _row(prep.point, metrics, prep.scenario.num_waypoints)
+
+
+def _batch_size(batch_size: int | None) -> int:
+    if batch_size is None:
+        env = os.environ.get(BATCH_ENV, "").strip()
+        if env:
+            try:
+                batch_size = int(env)
+            except ValueError:
+                raise SweepError(f"{BATCH_ENV}={env!r}: expected a positive integer") from None
+        else:
+            batch_size = DEFAULT_BATCH
+    if int(batch_size) < 1:
+        raise SweepError(f"batch size must be >= 1, got {batch_size}")
+    return int(batch_size)
+
+
+def _structure(config: Config, n_dim: int) -> RolloutStructure:
+    """The config's static structure for fleets in n_dim dimensions."""
+    st = structures(config)
+    nlp = dataclasses.replace(st.planner.nlp, n_dim=n_dim)
+    return dataclasses.replace(st, planner=dataclasses.replace(st.planner, nlp=nlp))
+
+
+# ------------------------------------------------------------------------ the sweep
+
+
+def run_sweep(config: Config, out_dir, *, progress: bool = True,
+              batch_size: int | None = None, figures: bool = True,
+              echo: Callable[[str], None] | None = print) -> SweepResult:
+    """Run (or resume) the config's [sweep] grid into ``out_dir`` (see the module doc).
+
+    Args:
+        config: a validated Config with a [sweep] table (backend "ideal").
+        out_dir: the sweep directory (created): sweep.csv, config.toml, figures/.
+        progress: a tqdm progress bar over runs (with ETA).
+        batch_size: runs per compiled batch (default: $JAXPLAN_SWEEP_BATCH or
+            DEFAULT_BATCH; at most the number of runs left).
+        figures: draw the heatmaps at the end.
+        echo: where the summary lines go (None: nowhere).
+    Returns: a :class:`SweepResult`.
+    """
+    t_wall = time.perf_counter()
+    cpu0 = time.process_time()
+    say = echo or (lambda s: None)
+    if config.sim.backend != "ideal":
+        raise SweepError(f"{config.source or config.name}: sim.backend = "
+                         f"{config.sim.backend!r}: sweeps run the ideal backend only")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "sweep.csv"
+    _guard_config(out, config)
+
+    rows, info = read_sweep_csv(csv_path)
+    if not csv_path.exists() or not info.clean or csv_path.stat().st_size == 0:
+        # a fresh file, or a repair after a kill mid-write: rewrite atomically
+        atomic_write_text(csv_path, _csv_text(rows, header=True))
+        if not info.clean:
+            say(f"{csv_path}: dropped {info.partial_bytes} bytes of a partial last line, "
+                f"{info.malformed} malformed and {info.duplicates} duplicate rows")
+    done = {row_key(r) for r in rows}
+    points = sweep_points(config)
+    todo = [p for p in points if p.key not in done]
+    skipped = len(points) - len(todo)
+    B = _batch_size(batch_size)
+
+    _CompileCounter.install()
+    c0 = _CompileCounter.get()
+    compile_s = run_s = 0.0
+    n_batches = 0
+    B_used = 0
+    if todo:
+        B_used = min(B, len(todo))
+        sources = {s.label: s for s in _sources(config)}
+        say(f"sweep {config.name}: {len(points)} runs ({skipped} already in {csv_path}), "
+            f"{len(todo)} to go in batches of {B_used}")
+        # build every remaining scenario once (seeded), group by shape (N, W)
+        scen: dict[tuple[str, int], Scenario] = {}
+        for p in todo:
+            if (p.scenario, p.seed) not in scen:
+                try:
+                    scen[(p.scenario, p.seed)] = sources[p.scenario].build(p.seed)
+                except (_sc.ScenarioError, ValueError) as e:
+                    raise SweepError(f"{config.source or config.name}: scenario "
+                                     f"{p.scenario!r}, seed {p.seed}: {e}") from None
+        groups: dict[tuple[int, int], list[SweepPoint]] = {}
+        for p in todo:
+            sc = scen[(p.scenario, p.seed)]
+            groups.setdefault((sc.dim, sc.num_waypoints), []).append(p)
+
+        bar = None
+
+        def open_bar():  # after the first compilation, so that the ETA counts runs only
+            if not progress:
+                return None
+            from tqdm.auto import tqdm
+
+            return tqdm(total=len(points), initial=skipped, unit="run", desc=config.name,
+                        dynamic_ncols=True, smoothing=0.0, file=sys.stderr)
+
+        try:
+            for (n_dim, n_wp), pts in groups.items():
+                m_pad = max(scen[(p.scenario, p.seed)].num_robots for p in pts)
+                structure = _structure(config, n_dim)
+                preps = []
+                for p in pts:
+                    sc = scen[(p.scenario, p.seed)]
+                    fp = fleet_params(config, sc, _weights(config, p.q_obs, p.q_lim))
+                    fp, task = _pad_robots(jax.tree.map(np.asarray, fp),
+                                           jax.tree.map(np.asarray, task_of(config, sc)),
+                                           m_pad)
+                    preps.append(_Prepared(p, sc, fp, task))
+                batches = [preps[i:i + B_used] for i in range(0, len(preps), B_used)]
+                compiled = None
+                for chunk in batches:
+                    n_real = len(chunk)
+                    full = chunk + [chunk[-1]] * (B_used - n_real)
+                    fpb = _stack([c.fp for c in full])
+                    taskb = _stack([c.task for c in full])
+                    if compiled is None:
+                        say(f"compiling the planner: batch of {B_used} runs x {m_pad} robots "
+                            f"x {structure.steps} replans ({n_dim}-D, {n_wp} waypoints)")
+                        t0 = time.perf_counter()
+                        compiled = _batch_jit.lower(fpb, taskb, structure=structure).compile()
+                        compile_s += time.perf_counter() - t0
+                        say(f"compiled in {time.perf_counter() - t0:.1f} s")
+                        if bar is None:
+                            bar = open_bar()
+                    t0 = time.perf_counter()
+                    (reached, reach_time), records = compiled(fpb, taskb)
+                    records = jax.tree.map(np.asarray, records)
+                    final = _View(np.asarray(reached), np.asarray(reach_time))
+                    new_rows = [_run_metrics(config, chunk[b], records, final, b)
+                                for b in range(n_real)]
+                    _append(csv_path, _csv_text(new_rows))
+                    run_s += time.perf_counter() - t0
+                    n_batches += 1
+                    if bar is not None:
+                        bar.update(n_real)
+        finally:
+            if bar is not None:
+                bar.close()
+    compilations = _CompileCounter.get() - c0
+
+    best = None
+    figs: list = []
+    final_rows, _ = read_sweep_csv(csv_path)
+    if final_rows:
+        from jaxplan import plots
+
+        best = plots.best_setting(csv_path)
+        if figures:
+            figs = plots.plot_sweep(out)
+    wall = time.perf_counter() - t_wall
+    res = SweepResult(out, csv_path, len(points), skipped, len(todo), n_batches, B_used,
+                      compilations, compile_s, run_s, wall, best, figs)
+    say(f"compilations: {compilations}")
+    say(f"runs: {len(todo)} run now, {skipped} skipped (already done), "
+        f"{len(final_rows)} rows in {csv_path}")
+    say(f"time: {wall:.1f} s wall ({compile_s:.1f} s compiling, {run_s:.1f} s running "
+        f"{n_batches} batch{'es' if n_batches != 1 else ''}); "
+        f"{time.process_time() - cpu0:.1f} s CPU")
+    if best is not None:
+        say("best setting: q_obs = {q_obs:.6g}, q_lim = {q_lim:.6g}  (success {s:.0f}%, "
+            "{collisions:.3g} collisions/run, min separation ratio {msr:.3f}, makespan "
+            "{mk} over {runs} runs)".format(
+                s=100 * best["success_rate"], msr=best["min_separation_ratio"],
+                mk=(f"{best['makespan_s']:.2f} s" if math.isfinite(best["makespan_s"])
+                    else "n/a"), **best))
+    for f in figs:
+        say(f"figure: {f}")
+    return res

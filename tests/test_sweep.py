@@ -1,0 +1,270 @@
+"""jaxplan.sweep: the grid, sweep.csv (resume, partial lines), padding, and the command
+end to end with a real SIGKILL of a subprocess and a resume."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxplan.config import parse_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# 2 x 2 weights x 2 seeds on three robots crossing a 2 m sphere (seeded perturbation)
+SWEEP_TOML = """
+name = "tiny_sweep"
+seed = 0
+[sim]
+duration_s = 3.0
+[scenario]
+kind = "antipodal_sphere"
+count = 3
+radius = 1.0
+perturbation = 0.1
+vehicles = ["firefly", "neo11"]
+[sweep]
+q_obs = [1.0, 100.0]
+q_lim = {log_min = -1, log_max = 1, num = 2}
+seeds = [0, 1]
+"""
+
+
+def _config(text=SWEEP_TOML, source="tiny_sweep.toml"):
+    return parse_config(tomllib.loads(text), source=source)
+
+
+# ----------------------------------------------------------------------------- no JAX
+
+
+def test_points_cover_the_grid_once_with_exact_keys():
+    from jaxplan.sweep import sweep_points
+
+    cfg = _config()
+    pts = sweep_points(cfg)
+    assert len(pts) == 2 * 2 * 2
+    assert len({p.key for p in pts}) == len(pts)
+    assert {p.scenario for p in pts} == {"antipodal_sphere"}
+    assert sorted({p.q_lim for p in pts}) == [0.1, 10.0]
+    # the key is the exact repr: a float written and read back has the same key
+    for p in pts:
+        assert float(p.key[0]) == p.q_obs and float(p.key[1]) == p.q_lim
+
+
+def test_registry_scenarios_label_rows():
+    from jaxplan.sweep import sweep_points
+
+    cfg = _config(SWEEP_TOML + 'scenarios = ["paper:six_neos", "stacked"]\n')
+    labels = [p.scenario for p in sweep_points(cfg)]
+    assert labels[:8] == ["paper:six_neos"] * 8 and labels[8:] == ["stacked"] * 8
+
+
+def _write(path: Path, rows, partial: str = ""):
+    from jaxplan.sweep import _csv_text
+
+    path.write_text(_csv_text(rows, header=True) + partial)
+
+
+def _row(qo, ql, seed, **kw):
+    r = {"q_obs": repr(qo), "q_lim": repr(ql), "scenario": "s", "seed": str(seed),
+         "success": "1", "min_separation_ratio": "1.5", "makespan_s": "3.0",
+         "collisions": "0"}
+    r.update(kw)
+    return r
+
+
+def test_csv_reader_drops_partial_malformed_and_duplicate_lines(tmp_path):
+    from jaxplan.sweep import COLUMNS, read_sweep_csv, row_key
+
+    p = tmp_path / "sweep.csv"
+    rows = [_row(1.0, 0.1, 0), _row(1.0, 0.1, 1), _row(1.0, 0.1, 0, success="0")]
+    _write(p, rows, partial="1.0,0.1,s,2,1,0,1.2")  # killed mid-write: no newline
+    got, info = read_sweep_csv(p)
+    assert [row_key(r) for r in got] == [("1.0", "0.1", "s", "0"), ("1.0", "0.1", "s", "1")]
+    assert got[0]["success"] == "1"  # the first occurrence wins
+    assert info.duplicates == 1 and info.partial_bytes > 0 and not info.clean
+    # a malformed line (wrong field count) in the middle
+    text = p.read_text().splitlines(keepends=True)
+    p.write_text(text[0] + "1.0,2.0\n" + "".join(text[1:3]))
+    got, info = read_sweep_csv(p)
+    assert len(got) == 2 and info.malformed == 1
+    # 1e-05 and 0.00001 are one key
+    assert row_key({"q_obs": "0.00001", "q_lim": "1", "scenario": "s", "seed": "3"}) == \
+        row_key({"q_obs": "1e-05", "q_lim": "1.0", "scenario": "s", "seed": "3"})
+    assert COLUMNS[:4] == ("q_obs", "q_lim", "scenario", "seed")
+
+
+def test_csv_reader_refuses_foreign_columns(tmp_path):
+    from jaxplan.sweep import SweepError, read_sweep_csv
+
+    p = tmp_path / "sweep.csv"
+    p.write_text("a,b\n1,2\n")
+    with pytest.raises(SweepError, match="columns"):
+        read_sweep_csv(p)
+
+
+def test_pad_robots_parks_masked_robots_far_away():
+    import jax
+
+    from jaxplan.config import build_scenario
+    from jaxplan.experiment import fleet_params, task_of
+    from jaxplan.sweep import _pad_robots
+
+    cfg = _config()
+    sc = build_scenario(cfg)
+    fp = jax.tree.map(np.asarray, fleet_params(cfg, sc))
+    task = jax.tree.map(np.asarray, task_of(cfg, sc))
+    fp2, task2 = _pad_robots(fp, task, 5)
+    assert task2.start.shape == (5, 3) and task2.waypoints.shape[0] == 5
+    assert fp2.robot_mask.tolist() == [True] * 3 + [False] * 2
+    assert fp2.radius.shape == (5,) and fp2.limits.v_max.shape == (5,)
+    assert np.all(task2.rest[3:]) and np.all(task2.goal_velocity[3:] == 0)
+    assert np.min(np.linalg.norm(task2.start[3:] - task2.start[:3, None], axis=-1)) > 1e3
+    np.testing.assert_array_equal(task2.waypoints[3:, 0], task2.start[3:])
+    fp3, task3 = _pad_robots(fp, task, 3)
+    assert task3 is task and fp3 is fp
+
+
+def test_a_directory_made_with_another_config_is_refused(tmp_path):
+    from jaxplan.sweep import SweepError, _guard_config
+
+    _guard_config(tmp_path, _config())
+    _guard_config(tmp_path, _config(SWEEP_TOML.replace("seeds = [0, 1]", "seeds = [0, 1, 2]")))
+    with pytest.raises(SweepError, match="different config.*sim"):
+        _guard_config(tmp_path, _config(SWEEP_TOML.replace("3.0", "4.0")))
+
+
+# ----------------------------------------------------------------------------- end to end
+
+
+def _sweep_cmd(cfg: Path, out: Path):
+    return [sys.executable, "-m", "jaxplan", "sweep", str(cfg), "--out", str(out), "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def sweep_env(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sweep")
+    cfg = d / "tiny_sweep.toml"
+    cfg.write_text(SWEEP_TOML)
+    env = dict(os.environ)
+    env["JAXPLAN_SWEEP_BATCH"] = "2"  # 8 runs -> 4 batches, so a kill lands mid-sweep
+    # the three processes share one persistent compilation cache (each still reports
+    # its one compilation of the batch program)
+    env["JAX_COMPILATION_CACHE_DIR"] = str(d / "jax_cache")
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return d, cfg, env
+
+
+def _rows(path: Path):
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    return sorted(rows, key=lambda r: (r["scenario"], float(r["q_obs"]), float(r["q_lim"]),
+                                       int(r["seed"])))
+
+
+def _data_lines(path: Path) -> int:
+    if not path.exists():
+        return 0
+    return max(0, path.read_bytes().count(b"\n") - 1)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(sweep_env):
+    d, cfg, env = sweep_env
+    out = d / "whole"
+    r = subprocess.run(_sweep_cmd(cfg, out), env=env, cwd=d, capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return out, r
+
+
+def test_sweep_writes_rows_figures_and_counts_one_compilation(uninterrupted):
+    out, r = uninterrupted
+    assert "compilations: 1" in r.stdout, r.stdout
+    assert "best setting: q_obs =" in r.stdout
+    rows = _rows(out / "sweep.csv")
+    assert len(rows) == 8
+    assert len({(x["q_obs"], x["q_lim"], x["scenario"], x["seed"]) for x in rows}) == 8
+    for x in rows:
+        assert x["success"] in ("0", "1")
+        assert float(x["min_separation_ratio"]) > 0
+        assert x["robots"] == "3" and x["replans"] == "24" and x["error"] == ""
+    for name in ("success_rate.png", "min_separation.png", "makespan.png"):
+        assert (out / "figures" / name).stat().st_size > 0
+    assert (out / "config.toml").exists()
+
+
+def test_rerun_skips_finished_rows(sweep_env, uninterrupted):
+    d, cfg, env = sweep_env
+    out, _ = uninterrupted
+    before = (out / "sweep.csv").read_bytes()
+    r = subprocess.run(_sweep_cmd(cfg, out), env=env, cwd=d, capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "compilations: 0" in r.stdout and "8 skipped" in r.stdout
+    assert (out / "sweep.csv").read_bytes() == before
+
+
+def test_sigkill_then_resume_gives_the_same_rows(sweep_env, uninterrupted):
+    d, cfg, env = sweep_env
+    whole, _ = uninterrupted
+    out = d / "killed"
+    csv_path = out / "sweep.csv"
+    proc = subprocess.Popen(_sweep_cmd(cfg, out), env=env, cwd=d, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 600
+        while _data_lines(csv_path) == 0:
+            assert proc.poll() is None, proc.stderr.read().decode()[-3000:]
+            assert time.monotonic() < deadline, "no batch finished in time"
+            time.sleep(0.02)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    n_killed = _data_lines(csv_path)
+    assert 1 <= n_killed < 8, n_killed  # killed mid-sweep: the batch in flight was lost
+    r = subprocess.run(_sweep_cmd(cfg, out), env=env, cwd=d, capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "compilations: 1" in r.stdout
+    assert f"{n_killed} skipped" in r.stdout
+    resumed = _rows(csv_path)
+    assert len(resumed) == 8
+    assert resumed == _rows(whole / "sweep.csv")
+
+
+@pytest.mark.slow
+def test_mixed_fleet_sizes_share_one_compilation(tmp_path):
+    """stacked (6 robots) is padded to antipodal_sphere's 10 with masked robots; its
+    rows match an unpadded sweep of stacked alone."""
+    from jaxplan.sweep import run_sweep
+
+    base = SWEEP_TOML.split("[sweep]")[0].replace("3.0", "1.0")
+    grid = '[sweep]\nq_obs = [10.0]\nq_lim = [1.0]\nseeds = [0]\n'
+    mixed = _config(base + grid + 'scenarios = ["antipodal_sphere", "stacked"]\n')
+    res = run_sweep(mixed, tmp_path / "mixed", progress=False, batch_size=2, figures=False,
+                    echo=None)
+    assert res.compilations == 1 and res.ran == 2
+    rows = {r["scenario"]: r for r in _rows(tmp_path / "mixed" / "sweep.csv")}
+    assert rows["antipodal_sphere"]["robots"] == "10" and rows["stacked"]["robots"] == "6"
+    alone = _config(base + grid + 'scenarios = ["stacked"]\n')
+    run_sweep(alone, tmp_path / "alone", progress=False, batch_size=1, figures=False,
+              echo=None)
+    (ref,) = _rows(tmp_path / "alone" / "sweep.csv")
+    got = rows["stacked"]
+    for c in ("success", "collisions", "reached_frac", "waypoints_frac", "error"):
+        assert got[c] == ref[c], c
+    for c in ("min_separation_ratio", "peak_speed_ratio"):
+        assert float(got[c]) == pytest.approx(float(ref[c]), rel=1e-6, abs=1e-9), c
