@@ -140,14 +140,17 @@ def test_scale_property(log_scale, seed, end, moving):
     L = 10.0**log_scale
     p0 = rng.normal(size=3) * L
     goal = p0 + rng.normal(size=3) * L
-    v0 = rng.normal(size=3) * np.sqrt(L) if moving else np.zeros(3)
-    a0 = rng.normal(size=3) if moving else np.zeros(3)
+    # consistent scales: T ~ L^(1/3) for a move of L metres, so v ~ L^(2/3), a ~ L^(1/3)
+    v0 = rng.normal(size=3) * L ** (2 / 3) if moving else np.zeros(3)
+    a0 = rng.normal(size=3) * L ** (1 / 3) if moving else np.zeros(3)
     tr = predict(p0, v0, a0, goal, end=end)
     T = float(tr.duration)
     assert np.isfinite(T) and T > 0
     assert np.all(np.isfinite(np.asarray(tr.coeffs)))
-    np.testing.assert_allclose(np.asarray(tr.evaluate(T)), goal, rtol=0, atol=1e-9 * (L + np.abs(goal).max()))
-    np.testing.assert_allclose(np.asarray(tr.evaluate(0.0, 1)), v0, rtol=0, atol=1e-9 * (1 + np.abs(v0).max()))
+    scale = L + np.abs(goal).max() + np.abs(p0).max()
+    np.testing.assert_allclose(np.asarray(tr.evaluate(T)), goal, rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(np.asarray(tr.evaluate(0.0, 1)), v0, rtol=0,
+                               atol=1e-9 * (L ** (2 / 3) + np.abs(v0).max()))
 
 
 @settings(max_examples=30, deadline=None)
