@@ -13,7 +13,8 @@
                | "stacked", and the generator's keys (see GENERATOR_KEYS)
     [sweep]    q_obs, q_lim (lists or {log_min, log_max, num}, base-10 exponents),
                seeds (list or {start, num}), scenarios (registry names)
-    [faults]   placeholder: empty or enabled = false
+    [faults]   enabled, message_loss, latency_s, noise_sigma_m, frozen_robot, frozen_at_s,
+               frozen_mode (jaxplan.faults; off by default)
 
 Robots: ``goal = [x, y, z]`` (one goal) or ``waypoints = [[x, y, z], ...]`` (several, in
 order; the fleet moves on when every robot reached waypoint w).  ``goal_velocity`` is
@@ -208,9 +209,16 @@ class SweepConfig:
 
 @dataclass(frozen=True)
 class FaultsConfig:
-    """[faults]: a placeholder (a later issue fills it); only enabled = false for now."""
+    """[faults] (jaxplan.faults): all off by default; ``enabled`` switches the faulty
+    channel on (a different compiled program)."""
 
     enabled: bool = False
+    message_loss: float = 0.0  # probability per (observer, sender, period), in [0, 1)
+    latency_s: float = 0.0  # s, rounded to whole replan periods
+    noise_sigma_m: float = 0.0  # m per axis on every received position
+    frozen_robot: int = -1  # index of the robot that stops responding; -1: none
+    frozen_at_s: float = 0.0  # s
+    frozen_mode: str = "silent"  # "silent" (stops sending) | "stale" (keeps sending)
 
 
 @dataclass(frozen=True)
@@ -412,13 +420,27 @@ def _parse_sim(c: _Ctx, raw: Any) -> SimConfig:
     return s
 
 
+FAULT_KEYS = ("enabled", "message_loss", "latency_s", "noise_sigma_m", "frozen_robot",
+              "frozen_at_s", "frozen_mode")
+
+
 def _parse_faults(c: _Ctx, raw: Any) -> FaultsConfig:
     t = c.table(raw, "faults")
-    c.keys(t, ("enabled",), "faults")
-    enabled = c.boolean(t.get("enabled", False), "faults.enabled")
-    if enabled:
-        raise c.err("faults.enabled", "fault injection is not implemented yet; use false")
-    return FaultsConfig(enabled=False)
+    c.keys(t, FAULT_KEYS, "faults")
+    d = FaultsConfig()
+    enabled = c.boolean(t.get("enabled", d.enabled), "faults.enabled")
+    loss = c.number(t.get("message_loss", d.message_loss), "faults.message_loss", ge=0.0)
+    if loss >= 1.0:
+        raise c.err("faults.message_loss", f"must be < 1 (a probability), got {loss}")
+    lat = c.number(t.get("latency_s", d.latency_s), "faults.latency_s", ge=0.0)
+    if lat > 10.0:
+        raise c.err("faults.latency_s", f"must be <= 10 s, got {lat}")
+    noise = c.number(t.get("noise_sigma_m", d.noise_sigma_m), "faults.noise_sigma_m", ge=0.0)
+    frozen = c.integer(t.get("frozen_robot", d.frozen_robot), "faults.frozen_robot", ge=-1)
+    at = c.number(t.get("frozen_at_s", d.frozen_at_s), "faults.frozen_at_s", ge=0.0)
+    mode = c.string(t.get("frozen_mode", d.frozen_mode), "faults.frozen_mode",
+                    ("silent", "stale"))
+    return FaultsConfig(enabled, loss, lat, noise, frozen, at, mode)
 
 
 _ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
@@ -844,7 +866,7 @@ def config_to_dict(config: Config) -> dict[str, Any]:
         d["robots"] = rows
     d["sweep"] = {"q_obs": list(config.sweep.q_obs), "q_lim": list(config.sweep.q_lim),
                   "seeds": list(config.sweep.seeds), "scenarios": list(config.sweep.scenarios)}
-    d["faults"] = {"enabled": config.faults.enabled}
+    d["faults"] = {k: getattr(config.faults, k) for k in FAULT_KEYS}
     return d
 
 
@@ -926,4 +948,9 @@ def build_scenario(config: Config) -> Scenario:
 
     Returns: a validated :class:`jaxplan.scenarios.Scenario`.
     """
-    return _build(config, validate=True)
+    sc = _build(config, validate=True)
+    fr = config.faults.frozen_robot
+    if fr >= sc.num_robots:
+        raise ConfigError(f"{config.source}: faults.frozen_robot: robot {fr} does not exist "
+                          f"(the fleet has {sc.num_robots} robots, numbered from 0)")
+    return sc

@@ -24,6 +24,7 @@ from jaxplan import metrics as mt
 from jaxplan import solver as slv
 from jaxplan.config import Config, build_scenario
 from jaxplan.costs import Limits, NLPStructure, Weights
+from jaxplan.faults import FaultParams, no_faults
 from jaxplan.planner import ACCEPTED, BRAKING, KEPT_PREVIOUS, FleetParams, PlannerStructure
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
@@ -59,8 +60,11 @@ def structures(config: Config) -> RolloutStructure:
         collision=pc.collision, n_collision_samples=_mult4(pc.n_samples),
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
+    fc = config.faults
     return RolloutStructure(planner=PlannerStructure(nlp=nlp, max_iters=pc.max_iters),
-                            steps=steps)
+                            steps=steps, faults=fc.enabled,
+                            latency_periods=round(fc.latency_s * pc.replan_hz) if fc.enabled
+                            else 0)
 
 
 def _mult4(n: int) -> int:
@@ -93,7 +97,22 @@ def task_of(config: Config, scenario: Scenario) -> Task:
         rest=jnp.asarray(full), goal_velocity=jnp.asarray(gv),
         goal_tolerance=jnp.asarray(config.sim.goal_tolerance_m),
         speed_tolerance=jnp.asarray(config.sim.goal_speed_tolerance_mps),
+        faults=fault_params(config, scenario.start.shape[0]),
     )
+
+
+def fault_params(config: Config, M: int) -> FaultParams:
+    """Traced fault settings of a config (all zero when [faults] is off)."""
+    fc = config.faults
+    if not fc.enabled:
+        return no_faults(M)._replace(seed=jnp.asarray(config.seed % 2**32, jnp.uint32))
+    frozen = np.zeros(M, bool)
+    if fc.frozen_robot >= 0:
+        frozen[fc.frozen_robot] = True
+    return FaultParams(jnp.asarray(fc.message_loss), jnp.asarray(fc.noise_sigma_m),
+                       jnp.asarray(frozen), jnp.asarray(fc.frozen_at_s),
+                       jnp.asarray(fc.frozen_mode == "stale"),
+                       jnp.asarray(config.seed % 2**32, jnp.uint32))
 
 
 _STEP_CACHE: dict = {}
@@ -244,9 +263,11 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     reached = np.asarray(final.reached)
     reach_time = np.asarray(final.reach_time)
     reached = reached & (reach_time <= duration + 1e-9)
-    all_reached = bool(np.all(reached))
+    frozen_robot = config.faults.frozen_robot if config.faults.enabled else -1
+    responsive = np.arange(M) != frozen_robot
+    all_reached = bool(np.all(reached[responsive]))
     ttg = np.where(reached[:, -1], reach_time[:, -1], np.nan)
-    makespan = float(np.nanmax(ttg)) if all_reached else None
+    makespan = float(np.nanmax(ttg[responsive])) if all_reached else None
     info = records.info
     fallback = np.asarray(info.fallback)
     status = np.asarray(info.status)
@@ -289,6 +310,7 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         "peak_speed_over_limit": _num(np.nanmax(kin.max_speed / scenario.v_max)),
         "per_robot": per_robot,
         "solver": {k: _num(v) if isinstance(v, float) else v for k, v in solver.items()},
+        "faults": _fault_summary(config, records, sep, min_dist, scenario, frozen_robot),
         "fallbacks": {
             "kept_previous": int(np.sum(fallback == KEPT_PREVIOUS)),
             "braking": int(np.sum(fallback == BRAKING)),
@@ -314,6 +336,30 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     }
     del N
     return metrics, arrays
+
+
+def _fault_summary(config, records, sep, min_dist, scenario, frozen_robot) -> dict:
+    """metrics.json ``faults``: what was injected and what it cost."""
+    fc = config.faults
+    comm = np.asarray(records.comm)
+    fb = np.asarray(records.info.fallback)
+    rho = scenario.radius[:, None] + scenario.radius[None, :]
+    hit = np.triu(min_dist < rho, 1)
+    responsive_hits = int(np.sum(hit)) if frozen_robot < 0 else int(np.sum(
+        hit & ((np.arange(len(rho))[:, None] != frozen_robot)
+               | (np.arange(len(rho))[None, :] != frozen_robot))))
+    return {
+        "enabled": fc.enabled,
+        "message_loss": fc.message_loss, "latency_s": fc.latency_s,
+        "noise_sigma_m": fc.noise_sigma_m, "frozen_robot": frozen_robot,
+        "frozen_mode": fc.frozen_mode if frozen_robot >= 0 else None,
+        "messages_delivered": int(comm[:, 0].sum()),
+        "messages_lost": int(comm[:, 1].sum()),
+        "max_view_age_s": float(comm[:, 2].max()) if len(comm) else 0.0,
+        "collisions_involving_responsive": responsive_hits,
+        "fallback_kept_previous": int(np.sum(fb == KEPT_PREVIOUS)),
+        "fallback_braking": int(np.sum(fb == BRAKING)),
+    }
 
 
 def _width(names) -> int:

@@ -35,6 +35,7 @@ from jaxplan.predict import _quintic_terms, predict_arrays
 from jaxplan.trajectory import Trajectory, _compose_matrix
 
 MAX_INFLATION = 2.0  # m: a stale sender's radius grows by v_max * age, at most this much
+STALE_AFTER_S = 0.5  # s: an older view is a robot holding its last known position
 
 # fallback kinds in ReplanInfo.fallback
 ACCEPTED, KEPT_PREVIOUS, BRAKING = 0, 1, 2
@@ -186,8 +187,13 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     """
     M = p.shape[0]
     nlp = structure.nlp
-    # predictions from each view, advanced to now by the message's age
-    preds = predict_views(views, fp.prediction_weight).shift(views.age)  # batch (M, M)
+    # predictions from each view, advanced to now by the message's age; a view older
+    # than STALE_AFTER_S is taken as a robot holding its last known position
+    fresh = views.age <= STALE_AFTER_S
+    preds = predict_views(views, fp.prediction_weight).shift(jnp.where(fresh, views.age, 0.0))
+    held = Trajectory.hold(views.p, preds.degree, preds.num_segments)
+    preds = jax.tree.map(lambda u, w: jnp.where(
+        fresh.reshape(fresh.shape + (1,) * (u.ndim - 2)), u, w), preds, held)
     # stale information: inflate the other's radius by how far it could have moved since
     inflate = jnp.minimum(fp.limits.v_max * views.age, MAX_INFLATION)
     eye = jnp.eye(M, dtype=bool)

@@ -31,6 +31,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan.faults import CommState, FaultParams, communicate, initial_comm
 from jaxplan.planner import (
     FleetParams,
     PlannerStructure,
@@ -50,6 +51,8 @@ class RolloutStructure:
     planner: PlannerStructure = field(default_factory=PlannerStructure)
     steps: int = 240
     checks_per_period: int = 16
+    faults: bool = False  # inject faults (jaxplan.faults); off: every view is fresh
+    latency_periods: int = 0  # message delay in replan periods (with faults)
 
 
 class Task(NamedTuple):
@@ -66,6 +69,7 @@ class Task(NamedTuple):
     goal_velocity: jax.Array
     goal_tolerance: jax.Array
     speed_tolerance: jax.Array
+    faults: FaultParams
 
 
 class RolloutState(NamedTuple):
@@ -79,6 +83,7 @@ class RolloutState(NamedTuple):
     wp: jax.Array  # () int32, the published waypoint
     reached: jax.Array  # (M, W) bool
     reach_time: jax.Array  # (M, W) s, inf until reached
+    comm: CommState  # messages and views (used with faults)
 
 
 class StepRecord(NamedTuple):
@@ -99,6 +104,7 @@ class StepRecord(NamedTuple):
     piece_coeffs: jax.Array
     wp: jax.Array
     info: ReplanInfo
+    comm: jax.Array  # (3,) messages delivered, messages lost, oldest view age (s)
 
 
 def current_goals(task: Task, wp, reached):
@@ -142,9 +148,10 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     M = st.p.shape[0]
     dt = fp.dt
     goal_p, goal_v, rest = current_goals(task, st.wp, st.reached)
-    views = fresh_views(st.p, st.v, st.a, goal_p, goal_v, rest)
+    comm, views, cstats = exchange(task, st, goal_p, goal_v, rest, structure)
     plans, info = replan(fp, st.plans, views, st.p, st.v, st.a, goal_p, goal_v, rest,
                          structure.planner)
+    plans = freeze(task, st, plans, structure)
     plan = plans.plan
     p1, v1, a1 = plan.state_at(jnp.broadcast_to(dt, (M,)))
     pt0, pt1, pc = executed_pieces(plan, st.t, dt)
@@ -154,9 +161,35 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     reached, reach_time, wp = goal_update(
         fp, task, st, goal_p, plan.sample(tau), jnp.linalg.norm(plan.sample(tau, 1), axis=-1),
         st.t + tau, jnp.ones((C,), bool))
-    rec = StepRecord(st.t, st.p, st.v, st.a, pt0, pt1, pc, st.wp, info)
-    new = RolloutState(st.t + dt, p1, v1, a1, plans, wp, reached, reach_time)
+    rec = StepRecord(st.t, st.p, st.v, st.a, pt0, pt1, pc, st.wp, info, cstats)
+    new = RolloutState(st.t + dt, p1, v1, a1, plans, wp, reached, reach_time, comm)
     return new, rec
+
+
+def exchange(task: Task, st: RolloutState, goal_p, goal_v, rest, structure: RolloutStructure):
+    """Views for this replan: fresh (no faults) or through the faulty channel.
+
+    Returns (CommState, Views, (3,) stats: delivered, lost, oldest age).
+    """
+    if not structure.faults:
+        views = fresh_views(st.p, st.v, st.a, goal_p, goal_v, rest)
+        return st.comm, views, jnp.zeros((3,))
+    comm, views, s = communicate(st.comm, task.faults, st.t, st.p, st.v, st.a, goal_p,
+                                 goal_v, rest)
+    stats = jnp.stack([s["delivered"], s["lost"], jnp.max(views.age)]).astype(jnp.float64)
+    return comm, views, stats
+
+
+def freeze(task: Task, st: RolloutState, plans, structure: RolloutStructure):
+    """A robot that stopped responding hovers where it is (faults only)."""
+    if not structure.faults:
+        return plans
+    frozen = task.faults.frozen & (st.t >= task.faults.frozen_at)
+    nlp = structure.planner.nlp
+    hold = Trajectory.hold(st.p, nlp.degree, nlp.segments)
+    plan = jax.tree.map(lambda u, w: jnp.where(
+        frozen.reshape(frozen.shape + (1,) * (u.ndim - 1)), u, w), hold, plans.plan)
+    return plans._replace(plan=plan)
 
 
 def goal_update(fp: FleetParams, task: Task, st: RolloutState, goal_p, pos, speed, times,
@@ -179,8 +212,10 @@ def goal_update(fp: FleetParams, task: Task, st: RolloutState, goal_p, pos, spee
     new_hit = col & hit[:, None] & ~st.reached
     reached = st.reached | new_hit
     reach_time = jnp.where(new_hit, first[:, None], st.reach_time)
-    # padding robots count as having reached everything
-    reached = reached | ~fp.robot_mask[:, None]
+    # padding robots, and robots that stopped responding, count as having reached
+    # everything (for publishing the next waypoint; metrics exclude them from success)
+    frozen = task.faults.frozen & (st.t >= task.faults.frozen_at)
+    reached = reached | ~fp.robot_mask[:, None] | frozen[:, None]
     all_here = jnp.all(reached[:, st.wp])
     wp = jnp.where(all_here & (st.wp < W - 1), st.wp + 1, st.wp).astype(jnp.int32)
     return reached, reach_time, wp
@@ -191,8 +226,12 @@ def initial_state(task: Task, structure: RolloutStructure) -> RolloutState:
     M, W, _ = task.waypoints.shape
     z = jnp.zeros_like(task.start)
     ps = initial_plan_state(task.start, structure.planner, M)
+    gv = jnp.where(task.rest[:, 0, None], task.goal_velocity[:, 0], 0.0)
+    comm = initial_comm(task.start, task.waypoints[:, 0], gv, task.rest[:, 0],
+                        structure.latency_periods if structure.faults else 0,
+                        task.faults.seed)
     return RolloutState(jnp.asarray(0.0), task.start, z, z, ps, jnp.asarray(0, jnp.int32),
-                        jnp.zeros((M, W), bool), jnp.full((M, W), jnp.inf))
+                        jnp.zeros((M, W), bool), jnp.full((M, W), jnp.inf), comm)
 
 
 def rollout(fp: FleetParams, task: Task, structure: RolloutStructure):

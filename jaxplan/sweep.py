@@ -386,6 +386,7 @@ def _pad_robots(fp, task: Task, m_pad: int):
                                   np.repeat(park[:, None, :], W, axis=1)]),
         rest=cat(task.rest, True),
         goal_velocity=cat(task.goal_velocity, 0.0),
+        faults=task.faults._replace(frozen=cat(task.faults.frozen, False)),
     )
     lim = fp.limits
     fp = fp._replace(

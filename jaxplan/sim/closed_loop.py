@@ -85,9 +85,9 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     times = jnp.concatenate([prec.t, t1[None]])
     valid = jnp.concatenate([prec.valid, jnp.ones((1,), bool)])
     reached, reach_time, wp = goal_update(fp, task, st, goal_p, pos, speed, times, valid)
-    rec = MjxRecord(StepRecord(t, p, v, a, pt0, pt1, pc, st.wp, info), prec)
+    rec = MjxRecord(StepRecord(t, p, v, a, pt0, pt1, pc, st.wp, info, jnp.zeros((3,))), prec)
     # t stays the start time of the current plans (the next step measures elapsed time)
-    new = RolloutState(t, p_end, v_end, st.a, plans, wp, reached, reach_time)
+    new = RolloutState(t, p_end, v_end, st.a, plans, wp, reached, reach_time, st.comm)
     return (new, new_sim), rec
 
 
