@@ -9,7 +9,7 @@ TINY_TOML = """
 name = "tiny"
 seed = 0
 [sim]
-duration_s = 6.0
+duration_s = 12.0
 [[robots]]
 vehicle = "firefly"
 start = [0.0, 0.0, 1.5]

@@ -84,7 +84,7 @@ ERRORS = [
     (two(sim={"duration_s": 0}), "sim.duration_s", "must be > 0"),
     (two(sim={"control_hz": 300.0}), "sim.control_hz", "whole number"),
     (two(seed=-1), "seed", "must be >= 0"),
-    (two(faults={"enabled": True}), "faults.enabled", "not implemented"),
+    (two(faults={"enabled": True, "message_loss": 1.5}), "faults.message_loss", "< 1"),
     ({"robots": [robot(vehicle="crazyflie")]}, "robots[0].vehicle", "unknown value 'crazyflie'"),
     ({"robots": [robot(vehicle=None)]}, "robots[0].vehicle", "missing"),
     ({"robots": [robot(start=None)]}, "robots[0].start", "missing"),

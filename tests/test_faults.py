@@ -82,7 +82,7 @@ def test_run_with_faults_is_reproducible_and_finite(tmp_path):
 
     text = TINY_TOML.replace("[sim]", "[faults]\nenabled = true\nmessage_loss = 0.3\n"
                              "noise_sigma_m = 0.02\nfrozen_robot = 2\nfrozen_at_s = 0.5\n[sim]")
-    text = text.replace("duration_s = 6.0", "duration_s = 2.0")
+    text = text.replace("duration_s = 12.0", "duration_s = 2.0")
     import tomllib
 
     cfg = parse_config(tomllib.loads(text), source="f.toml")
