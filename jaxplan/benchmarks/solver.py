@@ -1,0 +1,235 @@
+"""`jaxplan bench solver`: the JAX AL-SQP against NLopt SLSQP on the same NLPs.
+
+Run:  python -m jaxplan.benchmarks.solver [--json FILE] [--quick]
+(the lead wires it as `jaxplan bench solver`: call :func:`main`).
+
+Also home of the random NLP generators used by tests/test_solver.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxplan  # noqa: F401  (float64)
+from jaxplan import solver
+from jaxplan.costs import Limits, NLPParams, NLPStructure, Weights
+from jaxplan.predict import predict_arrays
+from jaxplan.reference import solve_slsqp
+
+DEFAULT_WEIGHTS = dict(q_dynm=1.0, q_obs=10.0, q_lim=1.0, k_t=1.0, k_p=4.0)
+DEFAULT_LIMITS = dict(v_max=2.0, a_max=4.0, j_max=15.0)
+
+
+def weights(**kw) -> Weights:
+    d = {**DEFAULT_WEIGHTS, **kw}
+    return Weights(*(jnp.asarray(d[k], jnp.float64) for k in Weights._fields))
+
+
+def limits(**kw) -> Limits:
+    d = {**DEFAULT_LIMITS, **kw}
+    return Limits(*(jnp.asarray(d[k], jnp.float64) for k in Limits._fields))
+
+
+def _unit(rng, N):
+    u = rng.normal(size=N)
+    return u / np.linalg.norm(u)
+
+
+def random_problem(rng, *, n_others: int, mo: int = 10, rest: bool = False, N: int = 3,
+                   radius: float = 0.25, w: Weights | None = None, lim: Limits | None = None,
+                   t_min: float = 0.1) -> NLPParams:
+    """One random single-robot NLP: a moving start, a goal 4-9 m away, and ``n_others``
+    other robots (padded to ``mo``) whose predicted straight paths cross the robot's
+    straight path at 25-75 % of its length, at about the time it gets there.  Others
+    cross at >= 35 degrees and start / end >= 2 m from the crossing, so the problem is
+    feasible with shape freedom."""
+    p0 = rng.uniform(-1, 1, N)
+    dirn = _unit(rng, N)
+    L = rng.uniform(4, 9)
+    pf = p0 + L * dirn
+    v0 = dirn * rng.uniform(0, 1.0) + rng.normal(size=N) * 0.3
+    a0 = rng.normal(size=N) * 0.3
+    T = float(predict_arrays(p0, v0, a0, pf, np.zeros(N), np.zeros(N), rest, 1.0).duration) * 1.3
+    ps, vs, gs = [], [], []
+    for _ in range(mo):
+        u = rng.uniform(0.25, 0.75)
+        cross = p0 + u * L * dirn
+        while True:
+            dj = _unit(rng, N)
+            if abs(dj @ dirn) < np.cos(np.radians(35)):
+                break
+        sp = rng.uniform(0.6, 1.6)
+        back = max(sp * u * T, 2.0)
+        ps.append(cross - dj * back)
+        vs.append(dj * sp * rng.uniform(0.3, 1.0))
+        gs.append(cross + dj * rng.uniform(2.5, 6.0))
+    ps, vs, gs = map(np.array, (ps, vs, gs))
+    z = np.zeros_like(ps)
+    others = predict_arrays(ps, vs, z, gs, z, z, rng.uniform(size=mo) < 0.5, 1.0)
+    mask = np.arange(mo) < n_others
+    f = lambda a: jnp.asarray(a, jnp.float64)
+    return NLPParams(f(p0), f(v0), f(a0), f(pf), f(np.zeros(N)), f(np.zeros(N)), jnp.asarray(rest),
+                     others, f(np.full(mo, radius)), jnp.asarray(mask), f(radius),
+                     w if w is not None else weights(), lim if lim is not None else limits(), f(t_min))
+
+
+def stack_params(ps: list[NLPParams]) -> NLPParams:
+    return jax.tree.map(lambda *a: jnp.stack(a), *ps)
+
+
+def index_params(p: NLPParams, i) -> NLPParams:
+    return jax.tree.map(lambda a: a[i], p)
+
+
+def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=None,
+                 t_min=0.1) -> NLPParams:
+    """The M NLPs of one fleet replan: robot i sees all M predictions (w = 1, the paper's
+    prediction), itself masked out.  pos, vel, acc, goals: (M, N)."""
+    M, N = pos.shape
+    z = jnp.zeros((M, N))
+    restv = jnp.broadcast_to(jnp.asarray(rest), (M,))
+    pred = predict_arrays(pos, vel, acc, goals, z, z, restv, 1.0)
+    others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
+    w = w if w is not None else weights()
+    lim = lim if lim is not None else limits()
+    bc = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float64), (M,))
+    return NLPParams(jnp.asarray(pos), jnp.asarray(vel), jnp.asarray(acc), jnp.asarray(goals), z, z, restv,
+                     others, jnp.full((M, M), radius), ~jnp.eye(M, dtype=bool), bc(radius),
+                     jax.tree.map(bc, w), jax.tree.map(bc, lim), bc(t_min))
+
+
+def antipodal(M: int, radius_m: float, rng, N: int = 3):
+    """M robots on a circle (jittered in z), goals antipodal (jittered)."""
+    ang = 2 * np.pi * np.arange(M) / M + rng.uniform(-0.05, 0.05, M)
+    pos = np.stack([radius_m * np.cos(ang), radius_m * np.sin(ang), 1.5 + rng.uniform(-0.3, 0.3, M)], -1)
+    goals = np.stack([-pos[:, 0], -pos[:, 1], 1.5 + rng.uniform(-0.3, 0.3, M)], -1)
+    goals[:, :2] += rng.uniform(-0.3, 0.3, (M, 2))
+    return pos[:, :N], goals[:, :N]
+
+
+# ---------------------------------------------------------------------- benchmark
+DT = 0.125
+
+
+def _timed(fn, *args, repeats=5):
+    out = jax.block_until_ready(fn(*args))
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        ts.append(time.perf_counter() - t0)
+    return out, 1e3 * statistics.median(ts)
+
+
+def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats):
+    """Cold solve, then ``steps`` warm replans 1/8 s apart (ideal tracking)."""
+    pos, goals = antipodal(M, radius_m, rng)
+    vel = np.zeros_like(pos)
+    acc = np.zeros_like(pos)
+    P = fleet_params(pos, vel, acc, goals)
+    t0 = time.perf_counter()
+    x0 = jax.block_until_ready(solver.initial_guess_batch(P, structure))
+    sol = jax.block_until_ready(solver.solve_batch(P, x0, structure, settings))
+    compile_s = time.perf_counter() - t0
+    sol, cold_ms = _timed(lambda P, x0: solver.solve_batch(P, x0, structure, settings), P, x0, repeats=repeats)
+    cold = dict(P=P, x0=x0, sol=sol)
+    warm_ms, warm_conv, warm_iters, warm_cases = [], [], [], []
+    ws = jax.jit(jax.vmap(lambda tr, p: solver.warm_start(tr, DT, p, structure)))
+    for _ in range(steps):
+        tr = sol.traj
+        pos, vel, acc = (np.asarray(a) for a in tr.state_at(jnp.full(tr.batch_shape, DT)))
+        P = fleet_params(pos, vel, acc, goals)
+        x0 = ws(tr, P)
+        fn = lambda P, x0, m, mu: solver.solve_batch(P, x0, structure, settings, m, mu)
+        sol, ms = _timed(fn, P, x0, sol.multipliers, sol.penalty, repeats=repeats)
+        warm_ms.append(ms)
+        warm_conv.append(float(np.mean(np.asarray(sol.status) == solver.CONVERGED)))
+        warm_iters.append(int(np.max(sol.iterations)))
+        warm_cases.append(dict(P=P, x0=x0, sol=sol))
+    return dict(compile_s=compile_s, cold_ms=cold_ms, cold_conv=float(np.mean(np.asarray(cold["sol"].status) == 0)),
+                cold_iters=int(np.max(cold["sol"].iterations)), warm_ms=statistics.median(warm_ms),
+                warm_ms_all=warm_ms, warm_conv=float(np.mean(warm_conv)), warm_iters_max=max(warm_iters)), cold, warm_cases
+
+
+def _slsqp_serial(case, structure):
+    P, x0, sol = case["P"], case["x0"], case["sol"]
+    M = x0.shape[0]
+    wall = cb = 0.0
+    evals = 0
+    gaps, viol, conv = [], [], []
+    for i in range(M):
+        r = solve_slsqp(index_params(P, i), np.asarray(x0[i]), structure)
+        wall += r.wall_s
+        cb += r.callback_s
+        evals += r.evaluations
+        conv.append(r.converged)
+        viol.append(r.ineq_violation)
+        gaps.append((float(sol.objective[i]) - r.objective) / max(1.0, abs(r.objective)))
+    return dict(ms=1e3 * wall, callback_ms=1e3 * cb, evaluations=evals, converged=float(np.mean(conv)),
+                max_violation=float(max(viol)), jax_max_violation=float(np.max(sol.ineq_violation)),
+                rel_gap_max=float(max(gaps)), rel_gap_median=float(np.median(gaps)))
+
+
+def run(quick: bool = False, structure: NLPStructure | None = None) -> dict:
+    structure = structure or NLPStructure()
+    settings = solver.SolverSettings()
+    rng = np.random.default_rng(0)
+    res = {"structure": structure.__dict__, "backend": jax.default_backend(),
+           "xla_flags": __import__("os").environ.get("XLA_FLAGS", "")}
+    steps, reps = (3, 3) if quick else (8, 5)
+    r10, cold10, warm10 = _fleet_run(10, 5.0, structure, settings, rng, steps, reps)
+    res["fleet10"] = r10
+    res["slsqp10_cold"] = _slsqp_serial(cold10, structure)
+    res["slsqp10_warm"] = _slsqp_serial(warm10[0], structure)
+    res["ratio_cold"] = res["slsqp10_cold"]["ms"] / r10["cold_ms"]
+    res["ratio_warm"] = res["slsqp10_warm"]["ms"] / r10["warm_ms"]
+    r100, _, _ = _fleet_run(100, 15.0, structure, settings, rng, 2 if quick else 3, 2 if quick else 3)
+    res["fleet100"] = r100
+    # (e) 64 scenarios x 10 robots in one batch
+    Ps = []
+    for _ in range(64):
+        pos, goals = antipodal(10, rng.uniform(4.0, 6.0), rng)
+        Ps.append(fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), goals))
+    P = jax.tree.map(lambda *a: jnp.concatenate(a), *Ps)
+    t0 = time.perf_counter()
+    x0 = jax.block_until_ready(solver.initial_guess_batch(P, structure))
+    jax.block_until_ready(solver.solve_batch(P, x0, structure, settings))
+    comp = time.perf_counter() - t0
+    sol, ms = _timed(lambda P, x0: solver.solve_batch(P, x0, structure, settings), P, x0, repeats=2 if quick else 3)
+    res["batch64x10"] = dict(ms=ms, solves_per_s=640 / (ms / 1e3), compile_s=comp,
+                             converged=float(np.mean(np.asarray(sol.status) == 0)))
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="jaxplan bench solver")
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args(argv)
+    res = run(quick=a.quick)
+    f10, f100, b = res["fleet10"], res["fleet100"], res["batch64x10"]
+    sc, sw = res["slsqp10_cold"], res["slsqp10_warm"]
+    print(f"M=10  cold {f10['cold_ms']:.1f} ms (conv {f10['cold_conv']:.0%}, iters<= {f10['cold_iters']})  "
+          f"warm {f10['warm_ms']:.1f} ms median (conv {f10['warm_conv']:.0%})  compile {f10['compile_s']:.1f} s")
+    print(f"SLSQP serial cold {sc['ms']:.1f} ms ({sc['evaluations']} evals, callbacks {sc['callback_ms']:.1f} ms, "
+          f"conv {sc['converged']:.0%}) ratio {res['ratio_cold']:.1f}x; warm {sw['ms']:.1f} ms ratio {res['ratio_warm']:.1f}x")
+    print(f"objective gap (jax - slsqp)/max(1,|slsqp|): cold max {sc['rel_gap_max']:.2e} median {sc['rel_gap_median']:.2e}; "
+          f"warm max {sw['rel_gap_max']:.2e}; violation jax {sc['jax_max_violation']:.1e} slsqp {sc['max_violation']:.1e}")
+    print(f"M=100 cold {f100['cold_ms']:.1f} ms warm {f100['warm_ms']:.1f} ms (conv {f100['warm_conv']:.0%}) compile {f100['compile_s']:.1f} s")
+    print(f"64x10 batch {b['ms']:.1f} ms -> {b['solves_per_s']:.0f} robot-NLP solves/s (conv {b['converged']:.0%}) compile {b['compile_s']:.1f} s")
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(res, fh, indent=2, default=str)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

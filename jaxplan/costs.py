@@ -1,0 +1,766 @@
+"""The per-robot NLP (MATH.md section 2): objective, constraints and their derivatives.
+
+Decision variables
+------------------
+Robot i's trajectory has ``S`` equal segments of degree ``D`` per axis (paper: D = 5,
+S = 1) joined C^2, and a horizon T.  Every equality constraint of the NLP is LINEAR in
+the normalized-time coefficients c (per axis, stacked over segments) for a given
+segment length h = T / S:
+
+    start      x(0) = p0, x'(0) = v0, x''(0) = a0         ->  rows of A c = e(h)
+    joints     C^2 continuity between segments             ->  A c = 0
+    end        x(T) = pf  (and v(T) = vf, a(T) = af when ``rest``)
+    with  e(h) = [p0, v0 h, a0 h^2, pf, vf h, af h^2]  and A CONSTANT.
+
+So the feasible coefficients are exactly  c = P e(h) + Z z  (a null-space, i.e. reduced
+KKT, parametrization), where
+
+* P e(h) is the minimum-jerk trajectory through the boundary conditions for this T
+  (z = 0 *is* the closed-form prediction of MATH.md section 1 for that T), and
+* Z spans null(A), chosen so that Z' Q Z = diag(q) (Q the jerk Gram matrix) and the
+  positions of Z z at dense samples are orthonormal: one unit of z moves the path by
+  about one metre RMS.  The smoothness term is then exactly
+  h^-5 (sum_d e_d' M e_d + sum q_i z_di^2)  with M = P' Q P.
+
+The decision vector is  x = (z (N, nz) flattened, tau = log T):  N nz + 1 numbers
+(paper, free end: 7; the rest end of the paper has nz_rest = 0 shape freedom, MATH.md).
+The equality constraints hold to rounding at every iterate (see
+:func:`equality_residual`).  Free and rest ends share the size nz = nz_free; a rest lane
+uses two fewer shape variables per axis and its spare ones are inert (they carry only
+the cost h^-5 z^2, so they stay 0).  The end-state kind is a traced per-lane flag.
+
+Objective terms (all integrals over [0, T], T = exp(tau)):
+  smoothness  q_dynm * int |x'''|^2 dt             exact (analytic)
+  time        k_t * T
+  limits      q_lim * int sum_k sexp(|x^(k)|^2 - tau_k^2) dt, k = 1, 2, 3 (norms over
+              axes), Gauss-Legendre per segment.  sexp = exp below 30 and its quadratic
+              Taylor continuation above (keeps the value finite; documented deviation).
+  collision   per ``NLPStructure.collision``:
+     "paper"       q_obs * int sum_j (dx . dv) / (d exp(k_p (d - rho_j))) dt  (the printed
+                   term; a total derivative, so path independent, MATH.md)
+     "barrier"     q_obs * int sum_j exp(-k_p (d_j - rho_j)) dt
+     "constraint"  d_j(t_k)^2 >= rho_j^2 at the collision samples (hard; augmented
+                   Lagrangian in the solver)
+     "barrier+constraint"  both.
+  Integrals over collision terms use composite 4-point Gauss-Legendre panels; the
+  same nodes are the constraint samples (t = 0 and t = T excluded: both are fixed).
+Optional hard limits (``hard_limits``): 1 - |x^(k)(t_i)|^2 / tau_k^2 >= 0 at uniform
+sample times in (0, T].  Bound: T >= t_min.
+
+Derivatives
+-----------
+All derivatives come from JAX autodiff of the functions below; structure makes them
+cheap: every sampled term is  sum_k f_k(y_k(x))  with y_k a few local features at
+sample k (position / velocity / ... and T).  y is linear in z for fixed tau, so
+  grad = sum_k J_k' g_k,   Hess = sum_k J_k' H_k J_k + (tau row/column of one Hessian-
+  vector product of  sum_k g_k . y_k(x)),
+with g_k, H_k the autodiff gradient and Hessian of f_k in its few local features.  The
+other robots' positions at t_k = T s_k depend on T; their second-order Taylor jet in T
+(exact value, first and second derivative at the current T) is formed once per
+iteration, so the local Hessians are cheap arithmetic.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from math import factorial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg
+
+from jaxplan.trajectory import Trajectory
+
+COLLISION_MODES = ("paper", "barrier", "constraint", "barrier+constraint", "none")
+SEXP_KNEE = 30.0
+DIST_EPS2 = 1e-12  # m^2, smooths |dx| at 0
+
+
+# ---------------------------------------------------------------------- data
+class Weights(NamedTuple):
+    """Objective weights (scalars, traced: changing them does not recompile)."""
+
+    q_dynm: jax.Array  # smoothness, per (m/s^3)^2 s
+    q_obs: jax.Array  # collision cost
+    q_lim: jax.Array  # soft dynamic limits
+    k_t: jax.Array  # price of one second
+    k_p: jax.Array  # 1/m, collision decay rate
+
+
+class Limits(NamedTuple):
+    """Dynamic limits (norms over axes), traced scalars."""
+
+    v_max: jax.Array  # m/s
+    a_max: jax.Array  # m/s^2
+    j_max: jax.Array  # m/s^3
+
+
+@dataclass(frozen=True)
+class NLPStructure:
+    """Static shape of the NLP (hashable; a change recompiles).
+
+    Attributes:
+        n_dim: spatial axes N.
+        degree: polynomial degree D per segment (>= 5 for C^2 joints with freedom).
+        segments: number of equal segments S (C^2 joints).
+        collision: one of COLLISION_MODES ("none" disables collision terms).
+        n_collision_samples: collision samples (a multiple of 4: composite 4-point
+            Gauss-Legendre panels over [0, T]).
+        n_quadrature: Gauss-Legendre nodes per segment for the soft-limit integral.
+        hard_limits: add the constraints |x^(k)(t_i)| <= tau_k.
+        n_limit_samples: uniform sample times in (0, T] for the hard limits.
+    """
+
+    n_dim: int = 3
+    degree: int = 5
+    segments: int = 1
+    collision: str = "barrier+constraint"
+    n_collision_samples: int = 32
+    n_quadrature: int = 8
+    hard_limits: bool = False
+    n_limit_samples: int = 16
+
+    def __post_init__(self):
+        if self.collision not in COLLISION_MODES:
+            raise ValueError(f"collision must be one of {COLLISION_MODES}, got {self.collision!r}")
+        if self.degree < 5:
+            raise ValueError("degree must be >= 5 (a rest end needs 6 conditions per segment)")
+        if self.segments < 1 or self.n_dim < 1:
+            raise ValueError("segments and n_dim must be >= 1")
+        if self.n_collision_samples % 4 or self.n_collision_samples < 4:
+            raise ValueError("n_collision_samples must be a positive multiple of 4")
+
+    @property
+    def barrier(self) -> bool:
+        return self.collision in ("barrier", "barrier+constraint")
+
+    @property
+    def paper(self) -> bool:
+        return self.collision == "paper"
+
+    @property
+    def collision_constraints(self) -> bool:
+        return self.collision in ("constraint", "barrier+constraint")
+
+    @property
+    def nz(self) -> int:
+        """Shape variables per axis (free-end count; rest lanes use nz - 2)."""
+        return self.segments * (self.degree - 2) - 1
+
+    @property
+    def n_x(self) -> int:
+        return self.n_dim * self.nz + 1
+
+
+class NLPParams(NamedTuple):
+    """Everything one robot's NLP depends on besides its structure (a pytree).
+
+    Shapes for one problem (add leading batch axes for vmap):
+        p0, v0, a0: (N,) start state.   goal_p, goal_v, goal_a: (N,) end state.
+        rest: () bool; True: fully defined end state (goal_p, goal_v, goal_a), False:
+            free end (goal_p only).
+        others: Trajectory with batch (Mo,): the other robots' predictions (any S, D).
+        other_radius: (Mo,) m.   other_mask: (Mo,) bool, False = ignore.
+        radius: () m.   weights: Weights.   limits: Limits.   t_min: () s (> 0).
+    """
+
+    p0: jax.Array
+    v0: jax.Array
+    a0: jax.Array
+    goal_p: jax.Array
+    goal_v: jax.Array
+    goal_a: jax.Array
+    rest: jax.Array
+    others: Trajectory
+    other_radius: jax.Array
+    other_mask: jax.Array
+    radius: jax.Array
+    weights: Weights
+    limits: Limits
+    t_min: jax.Array
+
+
+class Multipliers(NamedTuple):
+    """Augmented-Lagrangian multipliers (>= 0) of the inequality constraints."""
+
+    collision: jax.Array  # (Kc, Mo)
+    limits: jax.Array  # (Kh, 3)
+
+
+# ---------------------------------------------------------------------- static basis
+def _falling(i: int, r: int) -> int:
+    return factorial(i) // factorial(i - r) if i >= r else 0
+
+
+def _beta(r: int, s: float, D: int) -> np.ndarray:
+    """Row (D+1,): d^r/ds^r of the monomials at s."""
+    return np.array([_falling(i, r) * s ** (i - r) if i >= r else 0.0 for i in range(D + 1)])
+
+
+def _jerk_gram(D: int) -> np.ndarray:
+    Q = np.zeros((D + 1, D + 1))
+    for i in range(3, D + 1):
+        for j in range(3, D + 1):
+            Q[i, j] = _falling(i, 3) * _falling(j, 3) / (i + j - 5)
+    return Q
+
+
+def _seg_local(sigma: np.ndarray, S: int):
+    k = np.minimum(np.floor(sigma * S).astype(int), S - 1)
+    return k, sigma * S - k
+
+
+class _Kind(NamedTuple):
+    """Constants of one end-state kind (numpy; selected per lane)."""
+
+    P: np.ndarray  # (S(D+1), 6)
+    Z: np.ndarray  # (S(D+1), nz)
+    M: np.ndarray  # (6, 6)
+    q: np.ndarray  # (nz,)
+    col: np.ndarray  # (4, Kc, 6 + nz): rows [B_r | C_r], r = 0..3
+    quad: np.ndarray  # (4, Kq, 6 + nz)
+    lim: np.ndarray  # (4, Kh, 6 + nz)
+    fit_pinv: np.ndarray  # (nz, Kf)  z = pinv (target - B0 e)
+    fit_B: np.ndarray  # (Kf, 6)
+
+
+class Basis(NamedTuple):
+    free: _Kind
+    rest: _Kind
+    col_s: np.ndarray  # (Kc,) global normalized sample times
+    col_w: np.ndarray  # (Kc,) quadrature weights (sum 1)
+    quad_s: np.ndarray
+    quad_w: np.ndarray
+    lim_s: np.ndarray
+    fit_s: np.ndarray
+
+
+def _gauss01(n: int):
+    x, w = np.polynomial.legendre.leggauss(n)
+    return (x + 1) / 2, w / 2
+
+
+@functools.lru_cache(maxsize=None)
+def basis(structure: NLPStructure) -> Basis:
+    """Static matrices of a structure (numpy, cached)."""
+    D, S = structure.degree, structure.segments
+    nc = S * (D + 1)
+    nz = structure.nz
+    # sample sets (global normalized time)
+    xg, wg = _gauss01(4)
+    npan = structure.n_collision_samples // 4
+    col_s = ((np.arange(npan)[:, None] + xg[None]) / npan).ravel()
+    col_w = np.tile(wg, npan) / npan
+    xq, wq = _gauss01(structure.n_quadrature)
+    quad_s = ((np.arange(S)[:, None] + xq[None]) / S).ravel()
+    quad_w = np.tile(wq, S) / S
+    lim_s = np.arange(1, structure.n_limit_samples + 1) / structure.n_limit_samples
+    fit_s = np.linspace(0.0, 1.0, 4 * (D + 1) * S + 1)
+
+    def rows(r, sigma):
+        k, s = _seg_local(np.asarray(sigma, float), S)
+        out = np.zeros((len(k), nc))
+        for i, (kk, ss) in enumerate(zip(k, s)):
+            out[i, kk * (D + 1) : (kk + 1) * (D + 1)] = _beta(r, ss, D)
+        return out
+
+    Qb = scipy.linalg.block_diag(*[_jerk_gram(D)] * S)
+    pos_gram = rows(0, fit_s)
+
+    def kind(rest: bool) -> _Kind:
+        A, E = [], []
+        for r in range(3):  # start
+            row = np.zeros(nc)
+            row[: D + 1] = _beta(r, 0.0, D)
+            A.append(row)
+            E.append(np.eye(6)[r])
+        for k in range(S - 1):  # joints
+            for r in range(3):
+                row = np.zeros(nc)
+                row[k * (D + 1) : (k + 1) * (D + 1)] = _beta(r, 1.0, D)
+                row[(k + 1) * (D + 1) : (k + 2) * (D + 1)] = -_beta(r, 0.0, D)
+                A.append(row)
+                E.append(np.zeros(6))
+        for r in range(3 if rest else 1):  # end
+            row = np.zeros(nc)
+            row[(S - 1) * (D + 1) :] = _beta(r, 1.0, D)
+            A.append(row)
+            E.append(np.eye(6)[3 + r])
+        A, E = np.array(A), np.array(E)
+        m = A.shape[0]
+        K = np.block([[2 * Qb, A.T], [A, np.zeros((m, m))]])
+        rhs = np.vstack([np.zeros((nc, 6)), E])
+        P = np.linalg.solve(K, rhs)[:nc]
+        N0 = scipy.linalg.null_space(A)
+        nzk = N0.shape[1]
+        if nzk:
+            Qz = N0.T @ Qb @ N0
+            G = pos_gram @ N0
+            Gz = G.T @ G / len(fit_s)
+            q, V = scipy.linalg.eigh(Qz, Gz)
+            Z = N0 @ V
+        else:
+            q, Z = np.zeros(0), np.zeros((nc, 0))
+        pad = nz - nzk
+        Z = np.hstack([Z, np.zeros((nc, pad))])
+        q = np.concatenate([q, np.ones(pad)])
+        M = P.T @ Qb @ P
+
+        def sample_mats(sigma):
+            return np.stack([np.hstack([rows(r, sigma) @ P, rows(r, sigma) @ Z]) for r in range(4)])
+
+        Bf = rows(0, fit_s) @ P
+        Cf = rows(0, fit_s) @ Z
+        return _Kind(P, Z, M, q, sample_mats(col_s), sample_mats(quad_s), sample_mats(lim_s),
+                     np.linalg.pinv(Cf, rcond=1e-10), Bf)
+
+    return Basis(kind(False), kind(True), col_s, col_w, quad_s, quad_w, lim_s, fit_s)
+
+
+def kind_constants(rest, structure: NLPStructure) -> _Kind:
+    """The constants of the lane's end-state kind (traced ``rest`` flag selects)."""
+    b = basis(structure)
+    return jax.tree.map(lambda f, r: jnp.where(rest, jnp.asarray(r), jnp.asarray(f)), b.free, b.rest)
+
+
+# ---------------------------------------------------------------------- variables
+def unpack(x, structure: NLPStructure):
+    """x (n_x,) -> z (N, nz), tau ()."""
+    N, nz = structure.n_dim, structure.nz
+    return x[: N * nz].reshape(N, nz), x[-1]
+
+
+def pack(z, tau):
+    return jnp.concatenate([jnp.ravel(z), jnp.reshape(tau, (1,))])
+
+
+def boundary_vector(params: NLPParams, h):
+    """e(h) (6, N) = [p0, v0 h, a0 h^2, pf, vf h, af h^2]."""
+    return jnp.stack(
+        [params.p0, params.v0 * h, params.a0 * h**2, params.goal_p, params.goal_v * h, params.goal_a * h**2]
+    )
+
+
+def coefficients(x, params: NLPParams, structure: NLPStructure, kc: _Kind | None = None):
+    """Normalized-time coefficients (S, N, D+1) and T of decision vector x."""
+    kc = kind_constants(params.rest, structure) if kc is None else kc
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    e = boundary_vector(params, T / structure.segments)
+    c = kc.P @ e + kc.Z @ z.T  # (S(D+1), N)
+    S, D, N = structure.segments, structure.degree, structure.n_dim
+    return c.reshape(S, D + 1, N).transpose(0, 2, 1), T
+
+
+def to_trajectory(x, params: NLPParams, structure: NLPStructure) -> Trajectory:
+    """The plan of x: S equal segments; coasts after T unless ``rest`` (then holds)."""
+    c, T = coefficients(x, params, structure)
+    return Trajectory.from_normalized(c, T, coast=~jnp.asarray(params.rest, bool))
+
+
+def equality_residual(x, params: NLPParams, structure: NLPStructure):
+    """Max abs residual of the NLP's equality constraints (start, joints, end), in
+    m, m/s, m/s^2, from the coefficients themselves (not from the parametrization)."""
+    c, T = coefficients(x, params, structure)
+    S, D = structure.segments, structure.degree
+    h = T / S
+    b0 = [jnp.asarray(_beta(r, 0.0, D)) for r in range(3)]
+    b1 = [jnp.asarray(_beta(r, 1.0, D)) for r in range(3)]
+    res = []
+    start = (params.p0, params.v0, params.a0)
+    end = (params.goal_p, params.goal_v, params.goal_a)
+    for r in range(3):
+        res.append(c[0] @ b0[r] / h**r - start[r])
+        for k in range(S - 1):
+            res.append((c[k] @ b1[r] - c[k + 1] @ b0[r]) / h**r)
+        e = c[-1] @ b1[r] / h**r - end[r]
+        res.append(e if r == 0 else jnp.where(params.rest, e, 0.0))
+    return jnp.max(jnp.abs(jnp.stack(res)))
+
+
+# ---------------------------------------------------------------------- features
+def _features(x, params, structure, mats, derivs):
+    """Own derivatives at a sample set: concat([X_r (K, N) for r in derivs] + [T]) -> (K, m)."""
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    h = T / structure.segments
+    e = boundary_vector(params, h)
+    ez = jnp.concatenate([e, z.T], axis=0)  # (6 + nz, N)
+    out = [(mats[r] @ ez) / h**r for r in derivs]
+    K = mats.shape[1]
+    out.append(jnp.broadcast_to(T, (K, 1)))
+    return jnp.concatenate(out, axis=-1)
+
+
+def _others_derivs(others: Trajectory, mask, t, R: int):
+    """Derivatives 0..R of the others at times t (K,) -> list of (K, Mo, N).
+
+    After an other's end time it holds (coast False) or coasts (coast True).
+    """
+    c = others.coeffs
+    b = others.breaks
+    ok = mask & jnp.all(jnp.isfinite(c), axis=(-1, -2, -3)) & jnp.all(jnp.isfinite(b), axis=-1)
+    c = jnp.where(ok[:, None, None, None], c, 0.0)
+    b = jnp.where(ok[:, None], b, 0.0)
+    So, N, Kd = c.shape[-3:]
+    To = b[:, -1]
+    tt = t[:, None]
+    tc = jnp.clip(tt, 0.0, To[None, :])  # (K, Mo)
+    k = jnp.clip(jnp.sum(b[None, :, 1:So] <= tc[..., None], axis=-1), 0, So - 1)
+    lo = jnp.take_along_axis(b[None, :, :], k[..., None], axis=-1)[..., 0]
+    hi = jnp.take_along_axis(b[None, :, :], k[..., None] + 1, axis=-1)[..., 0]
+    h = hi - lo
+    he = jnp.where(h > 0, h, 1.0)
+    s = jnp.where(h > 0, (tc - lo) / he, 0.0)
+    ck = jnp.take_along_axis(c[None], k[..., None, None, None], axis=2)[:, :, 0]  # (K, Mo, N, Kd)
+    vals = []
+    for r in range(max(R, 1) + 1):
+        if r < Kd:
+            f = jnp.asarray([_falling(i, r) for i in range(r, Kd)], c.dtype)
+            cr = ck[..., r:] * f
+            v = cr[..., -1]
+            for i in range(cr.shape[-1] - 2, -1, -1):
+                v = v * s[..., None] + cr[..., i]
+            vals.append(v / he[..., None] ** r)
+        else:
+            vals.append(jnp.zeros(ck.shape[:-1], c.dtype))
+    after = (tt > To[None, :])[..., None]
+    coast = others.coast[None, :, None]
+    out = [vals[0] + jnp.where(after & coast, vals[1] * (tt - To[None, :])[..., None], 0.0)]
+    if R >= 1:
+        out.append(jnp.where(after & ~coast, 0.0, vals[1]))
+    for r in range(2, R + 1):
+        out.append(jnp.where(after, 0.0, vals[r]))
+    return out
+
+
+def sexp(u):
+    """exp(u) for u <= 30, its quadratic Taylor continuation above (finite, C^2)."""
+    a = jnp.minimum(u, SEXP_KNEE)
+    d = jnp.maximum(u - SEXP_KNEE, 0.0)
+    return jnp.exp(a) * (1.0 + d + 0.5 * d * d)
+
+
+def al_term(g, lam, mu):
+    """Augmented-Lagrangian term of g >= 0 with multiplier lam >= 0, penalty mu > 0."""
+    act = lam - mu * g > 0
+    return jnp.where(act, -lam * g + 0.5 * mu * g * g, -0.5 * lam * lam / mu)
+
+
+# ---------------------------------------------------------------------- local terms
+def _collision_local(y, jet, s, w, lam, T_ref, params, structure, mu, use_jet):
+    """Collision terms at one sample: y = (p (N), [v (N)], T)."""
+    N = structure.n_dim
+    p = y[:N]
+    T = y[-1]
+    dl = (T - T_ref) * s if use_jet else 0.0
+    o = jet[0] + jet[1] * dl + 0.5 * jet[2] * dl * dl  # (Mo, N)
+    dx = p - o
+    d2 = jnp.sum(dx * dx, axis=-1)
+    mask = params.other_mask
+    rho = params.radius + params.other_radius
+    wt = params.weights
+    val = 0.0
+    if structure.barrier or structure.paper:
+        d = jnp.sqrt(d2 + DIST_EPS2)
+        ex = jnp.exp(-wt.k_p * (d - rho))
+        if structure.barrier:
+            val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, ex, 0.0))
+        if structure.paper:
+            v = y[N : 2 * N]
+            ov = jet[1] + jet[2] * dl + 0.5 * jet[3] * dl * dl
+            c = jnp.sum(dx * (v - ov), axis=-1) / d * ex
+            val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, c, 0.0))
+    if structure.collision_constraints and lam is not None:
+        g = d2 - rho * rho
+        val = val + jnp.sum(jnp.where(mask, al_term(g, lam, mu), 0.0))
+    return val
+
+
+def _limits_local(y, w, params, structure):
+    """Soft limits at one quadrature node: y = (v, a, j, T)."""
+    N = structure.n_dim
+    lim = params.limits
+    T = y[-1]
+    v, a, j = y[:N], y[N : 2 * N], y[2 * N : 3 * N]
+    f = (
+        sexp(v @ v - lim.v_max**2)
+        + sexp(a @ a - lim.a_max**2)
+        + sexp(j @ j - lim.j_max**2)
+    )
+    return params.weights.q_lim * T * w * f
+
+
+def _hard_g(y, params, structure):
+    N = structure.n_dim
+    lim = params.limits
+    v, a, j = y[:N], y[N : 2 * N], y[2 * N : 3 * N]
+    return jnp.stack([1 - v @ v / lim.v_max**2, 1 - a @ a / lim.a_max**2, 1 - j @ j / lim.j_max**2])
+
+
+def _hard_local(y, lam, params, structure, mu):
+    return jnp.sum(al_term(_hard_g(y, params, structure), lam, mu))
+
+
+def _smooth_time(x, params, structure, kc):
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    h = T / structure.segments
+    e = boundary_vector(params, h)
+    jerk = (jnp.sum(e * (kc.M @ e)) + jnp.sum(kc.q * z * z)) / h**5
+    return params.weights.q_dynm * jerk + params.weights.k_t * T
+
+
+def _col_derivs(structure):
+    return (0, 1) if structure.paper else (0,)
+
+
+def _has_collision(structure):
+    return structure.collision != "none"
+
+
+# ---------------------------------------------------------------------- values
+def _terms(x, params, structure, kc, mult: Multipliers | None, mu):
+    """Objective (+ AL terms if ``mult`` given): exact values, differentiable in x."""
+    b = basis(structure)
+    val = _smooth_time(x, params, structure, kc)
+    yq = _features(x, params, structure, kc.quad, (1, 2, 3))
+    val = val + jnp.sum(jax.vmap(lambda y, w: _limits_local(y, w, params, structure))(yq, jnp.asarray(b.quad_w)))
+    if _has_collision(structure):
+        yc = _features(x, params, structure, kc.col, _col_derivs(structure))
+        T = yc[0, -1]
+        s = jnp.asarray(b.col_s)
+        jet = _others_derivs(params.others, params.other_mask, T * s, 1 if structure.paper else 0)
+        o1 = jet[1] if structure.paper else jnp.zeros_like(jet[0])
+        lam = mult.collision if mult is not None else None
+
+        def one(y, a0, a1, sk, wk, lk):
+            return _collision_local(y, (a0, a1, 0.0, 0.0), sk, wk, lk, 0.0, params, structure, mu, False)
+
+        vals = jax.vmap(one)(yc, jet[0], o1, s, jnp.asarray(b.col_w), lam)
+        val = val + jnp.sum(vals)
+    if structure.hard_limits and mult is not None:
+        yh = _features(x, params, structure, kc.lim, (1, 2, 3))
+        val = val + jnp.sum(jax.vmap(lambda y, l: _hard_local(y, l, params, structure, mu))(yh, mult.limits))
+    return val
+
+
+def objective(x, params: NLPParams, structure: NLPStructure):
+    """The NLP objective at x (no constraint terms).  Differentiable (used by SLSQP)."""
+    kc = kind_constants(params.rest, structure)
+    return _terms(x, params, structure, kc, None, 1.0)
+
+
+def constraints(x, params: NLPParams, structure: NLPStructure):
+    """Inequality constraints g(x) >= 0 as (collision (Kc, Mo), limits (Kh, 3)).
+
+    Collision: d^2 - rho^2 (m^2) at the collision samples (masked pairs: +1; zeros of
+    shape (Kc, Mo) when the mode has no collision constraints).  Limits: 1 - |x^(k)|^2 /
+    tau_k^2 at the hard-limit samples (+1 when ``hard_limits`` is off).
+    """
+    kc = kind_constants(params.rest, structure)
+    return _constraints(x, params, structure, kc)
+
+
+def _constraints(x, params, structure, kc):
+    b = basis(structure)
+    Mo = params.other_mask.shape[-1]
+    Kc, Kh = len(b.col_s), len(b.lim_s)
+    if structure.collision_constraints:
+        yc = _features(x, params, structure, kc.col, (0,))
+        T = yc[0, -1]
+        o = _others_derivs(params.others, params.other_mask, T * jnp.asarray(b.col_s), 0)[0]
+        dx = yc[:, None, : structure.n_dim] - o
+        rho = params.radius + params.other_radius
+        gc = jnp.sum(dx * dx, axis=-1) - rho**2
+        gc = jnp.where(params.other_mask, gc, 1.0)
+    else:
+        gc = jnp.ones((Kc, Mo), x.dtype)
+    if structure.hard_limits:
+        yh = _features(x, params, structure, kc.lim, (1, 2, 3))
+        gh = jax.vmap(lambda y: _hard_g(y, params, structure))(yh)
+    else:
+        gh = jnp.ones((Kh, 3), x.dtype)
+    return Multipliers(gc, gh)
+
+
+def merit(x, params, structure, kc, mult: Multipliers, mu):
+    """Augmented Lagrangian value: objective + AL terms of the inequality constraints."""
+    return _terms(x, params, structure, kc, mult, mu)
+
+
+# ---------------------------------------------------------------------- derivatives
+def _vgh(f, y, *args):
+    def g_aux(yy):
+        v, g = jax.value_and_grad(f)(yy, *args)
+        return g, (v, g)
+
+    H, (v, g) = jax.jacfwd(g_aux, has_aux=True)(y)
+    return v, g, H
+
+
+def _assemble(feat, x, vals, G, Hl):
+    """Chain rule through the per-sample features y = feat(x) (K, m)."""
+    J = jax.jacfwd(feat)(x)  # (K, m, n)
+    grad = jnp.einsum("km,kmn->n", G, J)
+    H = jnp.einsum("kmn,kmp,kpq->nq", J, Hl, J, optimize=True)
+    n = x.shape[0]
+    et = jnp.zeros(n, x.dtype).at[-1].set(1.0)
+    u = jax.jvp(jax.grad(lambda xx: jnp.sum(G * feat(xx))), (x,), (et,))[1]
+    H = H.at[:, -1].add(u).at[-1, :].add(u).at[-1, -1].add(-u[-1])
+    return jnp.sum(vals), grad, H
+
+
+def _d012(fn, x):
+    """Elementwise value, first and second derivative of an elementwise function (autodiff)."""
+    one = jnp.ones_like(x)
+    (v, d1), (_, d2) = jax.jvp(lambda y: jax.jvp(fn, (y,), (one,)), (x,), (one,))
+    return v, d1, d2
+
+
+def _radial(X, u, w, T, a, b):
+    """Value, gradient and Hessian in y = (p (N), T) of  sum_j [T a_j(r_j) + b_j(r_j)],
+    r_j = |X_j|^2,  X_j = p - o_j(T),  dX_j/dp = I, dX_j/dT = u_j, d2X_j/dT2 = w_j.
+
+    a, b: (value, first, second derivative in r) arrays (J,), from autodiff (_d012).
+    This is the chain rule of the composition through the scalars r_j and T (structure,
+    not a derivation: every term's own derivatives come from autodiff); checked against
+    jax.hessian of the same value in tests/test_costs.py.
+    """
+    av, a1, a2 = a
+    bv, b1, b2 = b
+    cd = T * a1 + b1
+    cdd = T * a2 + b2
+    Xu = jnp.sum(X * u, axis=-1)
+    val = jnp.sum(T * av + bv)
+    gp = 2.0 * jnp.sum(cd[:, None] * X, axis=0)
+    gT = jnp.sum(2.0 * cd * Xu + av)
+    N = X.shape[-1]
+    Hpp = 4.0 * jnp.einsum("j,jn,jm->nm", cdd, X, X) + 2.0 * jnp.sum(cd) * jnp.eye(N, dtype=X.dtype)
+    HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1)[:, None] * X + 2.0 * cd[:, None] * u, axis=0)
+    HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * (jnp.sum(u * u, -1) + jnp.sum(X * w, -1)) + 4.0 * a1 * Xu)
+    g = jnp.concatenate([gp, gT[None]])
+    H = jnp.zeros((N + 1, N + 1), X.dtype)
+    H = H.at[:N, :N].set(Hpp).at[:N, N].set(HpT).at[N, :N].set(HpT).at[N, N].set(HTT)
+    return val, g, H
+
+
+def _collision_radial(y, o0, o1, o2, s, w, lam, params, structure, mu):
+    """Structured derivatives of the barrier / constraint collision terms at one sample."""
+    N = structure.n_dim
+    p, T = y[:N], y[-1]
+    X = p - o0
+    u = -s * o1
+    ww = -s * s * o2
+    r = jnp.sum(X * X, axis=-1)
+    mask = params.other_mask
+    rho = params.radius + params.other_radius
+    wt = params.weights
+    zero = (jnp.zeros_like(r),) * 3
+    if structure.barrier:
+        af = lambda rr: jnp.where(mask, wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
+        a = _d012(af, r)
+    else:
+        a = zero
+    if structure.collision_constraints:
+        bf = lambda rr: jnp.where(mask, al_term(rr - rho * rho, lam, mu), 0.0)
+        bb = _d012(bf, r)
+    else:
+        bb = zero
+    return _radial(X, u, ww, T, a, bb)
+
+
+def _limits_radial(y, w, lam, params, structure, mu, soft: bool):
+    """Structured derivatives of the soft limits (soft=True) or hard-limit AL terms at
+    one sample, y = (v, a, j, T)."""
+    N = structure.n_dim
+    lim = params.limits
+    T = y[-1]
+    n = 3 * N + 1
+    val = 0.0
+    g = jnp.zeros(n, y.dtype)
+    H = jnp.zeros((n, n), y.dtype)
+    zN = jnp.zeros((1, N), y.dtype)
+    for k, tau in enumerate((lim.v_max, lim.a_max, lim.j_max)):
+        X = y[k * N : (k + 1) * N][None]
+        r = jnp.sum(X * X, axis=-1)
+        zero = (jnp.zeros_like(r),) * 3
+        if soft:
+            a = _d012(lambda rr: params.weights.q_lim * w * sexp(rr - tau**2), r)
+            b = zero
+        else:
+            a = zero
+            b = _d012(lambda rr: al_term(1.0 - rr / tau**2, lam[k], mu), r)
+        v, gk, Hk = _radial(X, zN, zN, T, a, b)
+        idx = jnp.asarray(list(range(k * N, (k + 1) * N)) + [n - 1])
+        val = val + v
+        g = g.at[idx].add(gk)
+        H = H.at[idx[:, None], idx[None, :]].add(Hk)
+    return val, g, H
+
+
+def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
+    """(value, gradient (n,), Hessian (n, n)) of the augmented Lagrangian at x."""
+    b = basis(structure)
+    v0, g0, H0 = _vgh(lambda xx: _smooth_time(xx, params, structure, kc), x)
+    total_v, total_g, total_H = v0, g0, H0
+
+    featq = lambda xx: _features(xx, params, structure, kc.quad, (1, 2, 3))
+    yq = featq(x)
+    vq, gq, Hq = jax.vmap(lambda y, w: _limits_radial(y, w, None, params, structure, mu, True))(
+        yq, jnp.asarray(b.quad_w)
+    )
+    v, g, H = _assemble(featq, x, vq, gq, Hq)
+    total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
+
+    if _has_collision(structure):
+        featc = lambda xx: _features(xx, params, structure, kc.col, _col_derivs(structure))
+        yc = featc(x)
+        T = jax.lax.stop_gradient(yc[0, -1])
+        s = jnp.asarray(b.col_s)
+        R = 3 if structure.paper else 2
+        jet = _others_derivs(params.others, params.other_mask, T * s, R)
+        jet = jet + [jnp.zeros_like(jet[0])] * (4 - len(jet))
+        lam = mult.collision if structure.collision_constraints else jnp.zeros(jet[0].shape[:2], x.dtype)
+        if structure.paper:
+            def loc(y, jk, sk, wk, lk):
+                return _vgh(
+                    lambda yy: _collision_local(yy, jk, sk, wk, lk, T, params, structure, mu, True), y
+                )
+
+            vc, gc, Hc = jax.vmap(loc)(yc, jet, s, jnp.asarray(b.col_w), lam)
+        else:
+            vc, gc, Hc = jax.vmap(
+                lambda y, a0, a1, a2, sk, wk, lk: _collision_radial(y, a0, a1, a2, sk, wk, lk, params, structure, mu)
+            )(yc, jet[0], jet[1], jet[2], s, jnp.asarray(b.col_w), lam)
+        v, g, H = _assemble(featc, x, vc, gc, Hc)
+        total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
+
+    if structure.hard_limits:
+        feath = lambda xx: _features(xx, params, structure, kc.lim, (1, 2, 3))
+        yh = feath(x)
+        vh, gh, Hh = jax.vmap(lambda y, l: _limits_radial(y, 0.0, l, params, structure, mu, False))(
+            yh, mult.limits
+        )
+        v, g, H = _assemble(feath, x, vh, gh, Hh)
+        total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
+    return total_v, total_g, total_H
+
+
+def paper_term_closed_form(x, params, structure):
+    """The exact integral of the "paper" collision term (a total derivative):
+    q_obs sum_j (exp(-k_p (d_j(0) - rho_j)) - exp(-k_p (d_j(T) - rho_j))) / k_p."""
+    c, T = coefficients(x, params, structure)
+    traj = Trajectory.from_normalized(c, T)
+    wt = params.weights
+    rho = params.radius + params.other_radius
+    out = 0.0
+    for t, sign in ((0.0, 1.0), (T, -1.0)):
+        p = traj.evaluate(t)
+        o = _others_derivs(params.others, params.other_mask, jnp.reshape(t, (1,)), 0)[0][0]
+        d = jnp.sqrt(jnp.sum((p - o) ** 2, axis=-1) + DIST_EPS2)
+        out = out + sign * jnp.sum(jnp.where(params.other_mask, jnp.exp(-wt.k_p * (d - rho)), 0.0))
+    return wt.q_obs * out / wt.k_p

@@ -1,0 +1,335 @@
+"""Augmented-Lagrangian SQP for one robot's NLP (MATH.md section 2), in JAX.
+
+Method (per problem; ``solve`` is pure, jit- and vmap-able)
+------------------------------------------------------------
+* Variables: x = (z, tau = log T) of :mod:`jaxplan.costs`.  The equality constraints
+  (start state, C^2 joints, end state) are eliminated exactly by the null-space
+  parametrization c = P e(h) + Z z, i.e. each step's KKT system is solved in its
+  reduced (null-space) form; they hold to rounding at every iterate.
+* Inequalities g(x) >= 0 (collision samples d^2 >= rho^2, optional hard limits) enter
+  an augmented Lagrangian  L_A = f + sum psi(g; lam, mu).  Multipliers are updated
+  (lam <- max(0, lam - mu g)) whenever the inner problem is nearly solved (Newton
+  decrement <= ``inner_tol``); the penalty mu grows (x ``mu_growth``) only when the
+  violation did not shrink by ``stall_ratio`` since the previous update.
+* Step: exact Hessian of L_A (structured autodiff, costs.merit_derivs), eigenvalues
+  floored at |lambda| >= reg * max|lambda| (eigh; negative curvature flipped), so the
+  step is a descent direction; T >= t_min by projection (tau at its bound with an
+  outward gradient is held); the step is capped (|dtau| <= max_step_tau, |dz|_inf <=
+  max_step_z); backtracking Armijo line search on L_A.
+* Stopping: Newton decrement^2 <= tol_stationarity (1 + |L_A|), max violation <=
+  tol_feasibility, max lam~ |g| <= tol_complementarity (1 + |L_A|), where
+  lam~ = max(0, lam - mu g) (the multiplier estimate whose Lagrangian gradient is the
+  AL gradient).  A bounded loop (``max_iters``); per-lane status, never raised.
+
+Status codes (``Solution.status``, int32):
+    0 CONVERGED      all three tests passed.
+    1 MAX_ITERS      iteration budget spent, constraints satisfied to tolerance.
+    2 NON_FINITE     a non-finite value appeared; x = x0 (finite), traj finite.
+    3 INFEASIBLE     budget spent with violation > tol_feasibility (e.g. a start
+                     inside another robot's radius, or a goal occupied).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import costs
+from jaxplan.costs import Multipliers, NLPParams, NLPStructure
+from jaxplan.predict import predict_arrays
+from jaxplan.trajectory import Trajectory
+
+CONVERGED, MAX_ITERS, NON_FINITE, INFEASIBLE = 0, 1, 2, 3
+STATUS_NAMES = {CONVERGED: "converged", MAX_ITERS: "max-iterations", NON_FINITE: "non-finite",
+                INFEASIBLE: "infeasible"}
+
+
+class SolverSettings(NamedTuple):
+    """Solver settings; all traced (changing them does not recompile)."""
+
+    max_iters: int = 60
+    tol_stationarity: float = 1e-10  # Newton decrement^2 / (1 + |L_A|)
+    tol_feasibility: float = 1e-8  # constraint units (m^2 for collisions)
+    tol_complementarity: float = 1e-8  # lam |g| / (1 + |L_A|)
+    inner_tol: float = 1e-4  # decrement^2 / (1 + |L_A|) that triggers a multiplier update
+    mu0: float = 10.0
+    mu_max: float = 1e10
+    mu_growth: float = 10.0
+    stall_ratio: float = 0.25
+    max_step_tau: float = 0.5
+    max_step_z: float = 4.0
+    armijo: float = 1e-4
+    max_backtracks: int = 30
+    reg: float = 1e-10
+
+
+class Solution(NamedTuple):
+    """Result of one solve (leading batch axes under vmap).
+
+    x: (n_x,) decision vector (z, log T).  traj: the plan (S segments; coasts after T
+    unless ``rest``).  objective: f(x) without constraint terms.  status: int32 (see
+    module doc).  iterations: int32.  kkt_residual: |projected grad of L_A|_inf at the
+    last derivative evaluation (= Lagrangian gradient with lam~).  eq_violation: max
+    residual of the equality constraints (m, m/s, m/s^2).  ineq_violation: max(0, -g)
+    (m^2 for collisions, dimensionless for hard limits).  multipliers, penalty: warm-
+    start the next solve.  decrement: last Newton decrement^2.
+    """
+
+    x: jax.Array
+    traj: Trajectory
+    objective: jax.Array
+    status: jax.Array
+    iterations: jax.Array
+    kkt_residual: jax.Array
+    eq_violation: jax.Array
+    ineq_violation: jax.Array
+    multipliers: Multipliers
+    penalty: jax.Array
+    decrement: jax.Array
+
+
+class _State(NamedTuple):
+    x: jax.Array
+    mult: Multipliers
+    mu: jax.Array
+    g: Multipliers
+    viol_ref: jax.Array
+    pending: jax.Array
+    it: jax.Array
+    done: jax.Array
+    bad: jax.Array
+    kkt: jax.Array
+    theta: jax.Array
+
+
+def _tree_where(c, a, b):
+    return jax.tree.map(lambda u, v: jnp.where(c, u, v), a, b)
+
+
+def _max_violation(g: Multipliers):
+    return jnp.maximum(jnp.max(-g.collision, initial=0.0), jnp.max(-g.limits, initial=0.0))
+
+
+def zero_multipliers(params: NLPParams, structure: NLPStructure) -> Multipliers:
+    b = costs.basis(structure)
+    Mo = params.other_mask.shape[-1]
+    return Multipliers(jnp.zeros((len(b.col_s), Mo)), jnp.zeros((len(b.lim_s), 3)))
+
+
+def _sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
+    """Replace non-finite own-state entries by 0; report whether all were finite."""
+    own = (params.p0, params.v0, params.a0, params.goal_p, params.goal_v, params.goal_a)
+    ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in own]))
+    scal = jax.tree.leaves((params.weights, params.limits, params.t_min, params.radius))
+    ok = ok & jnp.all(jnp.stack([jnp.isfinite(a) for a in scal]))
+    fz = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)
+    return params._replace(**{k: fz(getattr(params, k)) for k in
+                              ("p0", "v0", "a0", "goal_p", "goal_v", "goal_a")}), ok
+
+
+def initial_guess(params: NLPParams, structure: NLPStructure) -> jax.Array:
+    """x0 from the robot's own closed-form minimum time-jerk prediction to its goal.
+
+    z = 0 is exactly the minimum-jerk path for a given T (costs module doc).  T starts
+    from the prediction's optimal horizon with time weight k_t / q_dynm and is then
+    chosen on a geometric grid (x0.5 .. x8, and >= t_min) to minimize the objective
+    without collision terms (smoothness + time + soft limits), so that x0 does not
+    start deep in the exponential soft limits.  Finite for any input.
+    """
+    p, _ = _sanitize(params)
+    w = p.weights.k_t / jnp.maximum(p.weights.q_dynm, 1e-12)
+    w = jnp.where(jnp.isfinite(w) & (w > 0), w, 1.0)
+    pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, w)
+    T = pred.duration
+    tmin = jnp.where(jnp.isfinite(p.t_min) & (p.t_min > 0), p.t_min, 1e-3)
+    T = jnp.where(jnp.isfinite(T), jnp.maximum(T, tmin), tmin)
+    free = dataclasses.replace(structure, collision="none", hard_limits=False)
+    kc = costs.kind_constants(p.rest, free)
+    taus = jnp.log(jnp.maximum(T * jnp.geomspace(0.5, 8.0, 25), tmin))
+    xs = jnp.zeros((25, structure.n_x)).at[:, -1].set(taus)
+    fs = jax.vmap(lambda x: costs._terms(x, p, free, kc, None, 1.0))(xs)
+    fs = jnp.where(jnp.isfinite(fs), fs, jnp.inf)
+    return xs[jnp.argmin(fs)]
+
+
+def warm_start(prev: Trajectory, dt, params: NLPParams, structure: NLPStructure) -> jax.Array:
+    """x0 from the previous plan shifted by ``dt`` seconds (receding horizon).
+
+    The shifted plan (T' = T - dt, >= t_min) is re-fitted, by least squares on dense
+    position samples, to the equal-segment parametrization through the CURRENT start
+    state and goal of ``params``.  Falls back to :func:`initial_guess` when the previous
+    plan is degenerate (non-finite, or T - dt < t_min).
+    """
+    p, _ = _sanitize(params)
+    kc = costs.kind_constants(p.rest, structure)
+    b = costs.basis(structure)
+    sh = prev.shift(dt)
+    T = sh.duration
+    ok = jnp.isfinite(T) & (T > p.t_min)
+    Ts = jnp.where(ok, T, 1.0)
+    tgt = sh.evaluate(Ts * jnp.asarray(b.fit_s))  # (Kf, N)
+    e = costs.boundary_vector(p, Ts / structure.segments)
+    zt = kc.fit_pinv @ (tgt - kc.fit_B @ e)  # (nz, N)
+    x = costs.pack(zt.T, jnp.log(Ts))
+    ok = ok & jnp.all(jnp.isfinite(x))
+    return jnp.where(ok, x, initial_guess(params, structure))
+
+
+def _direction(H, grad, reg):
+    w, V = jnp.linalg.eigh(H)
+    wa = jnp.abs(w)
+    floor = reg * jnp.max(wa) + 1e-300
+    wm = jnp.maximum(wa, floor)
+    d = -V @ ((V.T @ grad) / wm)
+    return d
+
+
+def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettings = SolverSettings(),
+          multipliers: Multipliers | None = None, penalty=None) -> Solution:
+    """Solve one robot's NLP from x0 (pure; vmap/jit at the call site).
+
+    Args:
+        params: NLPParams of one problem.  x0: (n_x,) start (initial_guess / warm_start).
+        structure: static NLPStructure.  settings: SolverSettings (traced).
+        multipliers, penalty: optional warm start of the augmented Lagrangian (e.g. the
+            previous Solution's); default zeros and settings.mu0.
+    Returns:
+        Solution.
+    """
+    s = settings
+    params, finite_in = _sanitize(params)
+    x0 = jnp.asarray(x0, jnp.float64)
+    x0 = jnp.where(jnp.all(jnp.isfinite(x0)), x0, initial_guess(params, structure))
+    tau_min = jnp.log(jnp.maximum(params.t_min, 1e-6))
+    x0 = x0.at[-1].set(jnp.maximum(x0[-1], tau_min))
+    kc = costs.kind_constants(params.rest, structure)
+    mult0 = zero_multipliers(params, structure) if multipliers is None else multipliers
+    mult0 = jax.tree.map(lambda a: jnp.where(jnp.isfinite(a), jnp.maximum(a, 0.0), 0.0), mult0)
+    mu0 = jnp.asarray(s.mu0 if penalty is None else penalty, jnp.float64)
+    mu0 = jnp.where(jnp.isfinite(mu0) & (mu0 > 0), mu0, s.mu0)
+    g0 = costs._constraints(x0, params, structure, kc)
+    n = x0.shape[0]
+
+    def merit(x, mult, mu):
+        return costs.merit(x, params, structure, kc, mult, mu)
+
+    def body(st: _State) -> _State:
+        # 1. multiplier / penalty update (inner problem nearly solved at st.x)
+        lam_new = jax.tree.map(lambda l, g: jnp.maximum(0.0, l - st.mu * g), st.mult, st.g)
+        viol = _max_violation(st.g)
+        grow = st.pending & (viol > s.tol_feasibility) & (viol > s.stall_ratio * st.viol_ref)
+        mu = jnp.where(grow, jnp.minimum(st.mu * s.mu_growth, s.mu_max), st.mu)
+        mult = _tree_where(st.pending, lam_new, st.mult)
+        viol_ref = jnp.where(st.pending, viol, st.viol_ref)
+        x = st.x
+        # 2. derivatives and the bound on tau
+        f, gr, H = costs.merit_derivs(x, params, structure, kc, mult, mu)
+        held = (x[-1] <= tau_min + 1e-12) & (gr[-1] > 0)
+        grp = gr.at[-1].set(jnp.where(held, 0.0, gr[-1]))
+        Hp = jnp.where(held, H.at[-1, :].set(0.0).at[:, -1].set(0.0).at[-1, -1].set(1.0), H)
+        finite = jnp.isfinite(f) & jnp.all(jnp.isfinite(grp)) & jnp.all(jnp.isfinite(Hp))
+        grp = jnp.where(finite, grp, 0.0)
+        Hp = jnp.where(finite, Hp, jnp.eye(n))
+        # 3. direction, decrement, convergence at x
+        d = _direction(Hp, grp, s.reg)
+        theta = -grp @ d
+        scale = 1.0 + jnp.abs(f)
+        lam_t = jax.tree.map(lambda l, g: jnp.maximum(0.0, l - mu * g), mult, st.g)
+        compl = jnp.maximum(jnp.max(lam_t.collision * jnp.abs(st.g.collision), initial=0.0),
+                            jnp.max(lam_t.limits * jnp.abs(st.g.limits), initial=0.0))
+        conv = (theta <= s.tol_stationarity * scale) & (viol <= s.tol_feasibility) & (
+            compl <= s.tol_complementarity * scale)
+        # 4. capped step and projected Armijo backtracking on L_A
+        cap = jnp.minimum(1.0, s.max_step_tau / jnp.maximum(jnp.abs(d[-1]), 1e-300))
+        cap = jnp.minimum(cap, s.max_step_z / jnp.maximum(jnp.max(jnp.abs(d[:-1]), initial=0.0), 1e-300))
+        d = d * cap
+
+        def trial(a):
+            xt = x + a * d
+            xt = xt.at[-1].set(jnp.maximum(xt[-1], tau_min))
+            ft = merit(xt, mult, mu)
+            ok = jnp.isfinite(ft) & (ft <= f + s.armijo * (grp @ (xt - x)))
+            return xt, ok
+
+        def ls_cond(c):
+            a, k, ok = c
+            return (~ok) & (k < s.max_backtracks)
+
+        def ls_body(c):
+            a, k, _ = c
+            a = a * 0.5
+            return a, k + 1, trial(a)[1]
+
+        a, k, ok = jax.lax.while_loop(ls_cond, ls_body, (jnp.asarray(1.0), 0, trial(1.0)[1]))
+        x_new = jnp.where(ok, trial(a)[0], x)
+        g_new = costs._constraints(x_new, params, structure, kc)
+        pending = (theta <= s.inner_tol * scale) | ~ok
+        kkt = jnp.max(jnp.abs(grp))
+        new = _State(x_new, mult, mu, g_new, viol_ref, pending, st.it + 1, conv | ~finite,
+                     ~finite, kkt, theta)
+        # a converged lane keeps x (its tests were evaluated there)
+        keep = conv | ~finite
+        new = new._replace(x=jnp.where(keep, x, x_new), g=_tree_where(keep, st.g, g_new),
+                           it=jnp.where(keep, st.it, st.it + 1))
+        return _tree_where(st.done, st, new)
+
+    def cond(st: _State):
+        return (~st.done) & (st.it < s.max_iters)
+
+    st0 = _State(x0, mult0, mu0, g0, jnp.asarray(jnp.inf), jnp.asarray(False), jnp.asarray(0, jnp.int32),
+                 jnp.asarray(False), jnp.asarray(False), jnp.asarray(jnp.inf), jnp.asarray(jnp.inf))
+    st = jax.lax.while_loop(cond, body, st0)
+
+    bad = st.bad | ~finite_in | ~jnp.all(jnp.isfinite(st.x))
+    x = jnp.where(bad, x0, st.x)
+    viol = _max_violation(costs._constraints(x, params, structure, kc))
+    conv = st.done & ~bad
+    status = jnp.where(bad, NON_FINITE, jnp.where(conv, CONVERGED,
+                       jnp.where(viol > s.tol_feasibility, INFEASIBLE, MAX_ITERS))).astype(jnp.int32)
+    traj = costs.to_trajectory(x, params, structure)
+    traj_ok = jnp.all(jnp.isfinite(traj.coeffs)) & jnp.all(jnp.isfinite(traj.breaks))
+    hold = Trajectory.hold(params.p0, structure.degree, structure.segments)
+    traj = _tree_where(traj_ok, traj, hold._replace(coast=traj.coast))
+    obj = costs._terms(x, params, structure, kc, None, 1.0)
+    return Solution(
+        x=x, traj=traj, objective=obj, status=status, iterations=st.it,
+        kkt_residual=st.kkt, eq_violation=costs.equality_residual(x, params, structure),
+        ineq_violation=viol, multipliers=st.mult, penalty=st.mu, decrement=st.theta,
+    )
+
+
+def _flat_vmap(fn, batch_ndim, *args):
+    def flat(a):
+        return a.reshape((-1,) + a.shape[batch_ndim:])
+
+    lead = None
+    flat_args = []
+    for a in args:
+        if a is None:
+            flat_args.append(None)
+            continue
+        leaves = jax.tree.leaves(a)
+        lead = leaves[0].shape[:batch_ndim]
+        flat_args.append(jax.tree.map(flat, a))
+    out = jax.vmap(fn)(*flat_args)
+    return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), out)
+
+
+@functools.partial(jax.jit, static_argnames=("structure",))
+def solve_batch(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettings = SolverSettings(),
+                multipliers: Multipliers | None = None, penalty=None) -> Solution:
+    """jit(vmap(solve)) over all leading axes of x0 (..., n_x) and params (same leading
+    axes); ``settings`` is shared (traced)."""
+    nb = x0.ndim - 1
+    fn = lambda p, x, m, pen: solve(p, x, structure, settings, m, pen)
+    return _flat_vmap(fn, nb, params, x0, multipliers, penalty)
+
+
+@functools.partial(jax.jit, static_argnames=("structure",))
+def initial_guess_batch(params: NLPParams, structure: NLPStructure):
+    """initial_guess over one leading batch axis."""
+    return jax.vmap(lambda p: initial_guess(p, structure))(params)

@@ -1,0 +1,112 @@
+"""Tests of jaxplan.costs: the NLP's terms, parametrization and structured derivatives."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxplan  # noqa: F401
+from jaxplan import costs
+from jaxplan.benchmarks.solver import random_problem, weights
+from jaxplan.costs import Multipliers, NLPStructure
+from jaxplan.predict import quintic_coeffs
+
+
+def _x(rng, st, T, scale=0.2):
+    x = np.zeros(st.n_x)
+    x[:-1] = rng.normal(size=st.n_x - 1) * scale
+    x[-1] = np.log(T)
+    return jnp.asarray(x)
+
+
+CASES = [
+    (NLPStructure(collision="barrier+constraint", hard_limits=True), False),
+    (NLPStructure(collision="barrier+constraint", segments=3, hard_limits=True), True),
+    (NLPStructure(collision="paper", segments=2), False),
+    (NLPStructure(collision="constraint", degree=7), True),
+]
+
+
+@pytest.mark.parametrize("st,rest", CASES)
+def test_structured_derivatives_match_autodiff(st, rest):
+    rng = np.random.default_rng(0)
+    p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
+    kc = costs.kind_constants(p.rest, st)
+    b = costs.basis(st)
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (len(b.col_s), 10))),
+                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
+    x = _x(rng, st, 5.0, 0.05)
+    f = lambda xx: costs.merit(xx, p, st, kc, mult, 30.0)
+    v, g, H = jax.jit(lambda xx: costs.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
+    vr, gr, Hr = jax.jit(lambda xx: (f(xx), jax.grad(f)(xx), jax.hessian(f)(xx)))(x)
+    np.testing.assert_allclose(v, vr, rtol=1e-12)
+    np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
+    np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
+
+
+@pytest.mark.parametrize("st,rest", CASES)
+def test_equalities_hold_by_construction(st, rest):
+    rng = np.random.default_rng(1)
+    p = random_problem(rng, n_others=3, rest=rest)
+    xs = jnp.stack([_x(rng, st, rng.uniform(0.5, 20.0), 3.0) for _ in range(4)])
+    res = jax.jit(jax.vmap(lambda x: costs.equality_residual(x, p, st)))(xs)
+    assert float(jnp.max(res)) < 1e-9
+
+
+@pytest.mark.parametrize("rest", [False, True])
+def test_z0_is_closed_form_prediction_and_jerk_is_exact(rest):
+    st = NLPStructure(segments=2, collision="none")
+    rng = np.random.default_rng(2)
+    p = random_problem(rng, n_others=2, rest=rest)
+    T = 4.3
+    x = jnp.zeros(st.n_x).at[-1].set(np.log(T))
+    traj = costs.to_trajectory(x, p, st)
+    c1 = quintic_coeffs(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, jnp.asarray(T))
+    ts = np.linspace(0, T, 41)
+    from jaxplan.trajectory import Trajectory
+    ref = Trajectory.from_normalized(c1[None], T).evaluate(ts[:, None])
+    np.testing.assert_allclose(traj.evaluate(ts[:, None]), ref, atol=1e-10)
+    # analytic smoothness == numerical integral of |jerk|^2 (x with shape freedom)
+    x = _x(rng, st, T, 0.5)
+    if rest:  # a rest lane's two spare shape variables per axis are inert (cost only)
+        z, tau = costs.unpack(x, st)
+        x = costs.pack(z.at[:, -2:].set(0.0), tau)
+    traj = costs.to_trajectory(x, p, st)
+    tq, wq = np.polynomial.legendre.leggauss(20)
+    num = 0.0
+    for k in range(st.segments):
+        t = (k + (tq + 1) / 2) * T / st.segments
+        j = traj.evaluate(t, 3)
+        num += np.sum(wq[:, None] * np.asarray(j) ** 2) / 2 * T / st.segments
+    kc = costs.kind_constants(p.rest, st)
+    ana = costs._smooth_time(x, p._replace(weights=weights(k_t=0.0)), st, kc)
+    np.testing.assert_allclose(ana, num, rtol=1e-10)
+
+
+def test_paper_term_is_path_independent():
+    """The printed collision term is a total derivative (MATH.md): its integral depends
+    only on the end points, not on the path in between."""
+    st = NLPStructure(collision="paper", segments=2, n_collision_samples=256)
+    st0 = NLPStructure(collision="none", segments=2, n_collision_samples=256)
+    rng = np.random.default_rng(3)
+    p = random_problem(rng, n_others=5, w=weights(q_obs=1.0, k_p=2.0, q_lim=0.0))
+    xs = jnp.stack([_x(rng, st, 5.0, 0.1 * i) for i in range(4)])
+    f = jax.jit(jax.vmap(lambda x: (costs.objective(x, p, st) - costs.objective(x, p, st0),
+                                    costs.paper_term_closed_form(x, p, st))))
+    terms, closed = f(xs)
+    # quadrature of a term whose integrand has kinks where paths cross: 1e-3
+    np.testing.assert_allclose(terms, closed, rtol=1e-3)
+    # the closed form itself: different paths, same end points and T, the same value
+    assert np.ptp(np.asarray(closed)) < 1e-12
+    assert np.ptp(np.asarray(terms)) < 2e-3 * np.max(np.abs(terms))
+
+
+def test_others_hold_or_coast_after_their_end():
+    from jaxplan.trajectory import Trajectory
+    c = np.zeros((2, 1, 3, 6))
+    c[:, 0, 0, 1] = 2.0  # x = 2 s (normalized), T = 2 -> 1 m/s
+    tr = Trajectory.from_normalized(c, jnp.asarray([2.0, 2.0]), coast=jnp.asarray([False, True]))
+    out = costs._others_derivs(tr, jnp.asarray([True, True]), jnp.asarray([1.0, 3.0]), 1)
+    np.testing.assert_allclose(out[0][1, :, 0], [2.0, 3.0])  # hold vs coast
+    np.testing.assert_allclose(out[1][1, :, 0], [0.0, 1.0])
+    np.testing.assert_allclose(out[0][0, :, 0], [1.0, 1.0])
