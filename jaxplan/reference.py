@@ -52,6 +52,7 @@ def _evaluator(structure: NLPStructure):
 
 def solve_slsqp(params: NLPParams, x0, structure: NLPStructure, *, ftol_rel: float = 1e-10,
                 xtol_rel: float = 1e-10, maxeval: int = 1000, tau_max: float = np.log(1e3),
+                maxtime: float = 30.0,
                 tol_feasibility: float = 1e-8) -> SLSQPResult:
     """Solve one NLP (unbatched params) with NLopt LD_SLSQP from x0."""
     ev = _evaluator(structure)
@@ -95,6 +96,8 @@ def solve_slsqp(params: NLPParams, x0, structure: NLPStructure, *, ftol_rel: flo
     opt.set_ftol_rel(ftol_rel)
     opt.set_xtol_rel(xtol_rel)
     opt.set_maxeval(maxeval)
+    # a wall-clock guard: NLopt's SLSQP was seen here to loop for hours on one problem
+    opt.set_maxtime(maxtime)
     x0c = np.clip(x0, lb, ub)
     t0 = time.perf_counter()
     try:
