@@ -24,6 +24,8 @@ from jaxplan.costs import Limits, NLPParams, NLPStructure, Weights
 from jaxplan.predict import predict_arrays
 from jaxplan.reference import solve_slsqp
 
+_predict = jax.jit(predict_arrays)  # eager predict_arrays is slow (op by op)
+
 DEFAULT_WEIGHTS = dict(q_dynm=1.0, q_obs=10.0, q_lim=1.0, k_t=1.0, k_p=4.0)
 DEFAULT_LIMITS = dict(v_max=2.0, a_max=4.0, j_max=15.0)
 
@@ -57,7 +59,7 @@ def random_problem(rng, *, n_others: int, mo: int = 10, rest: bool = False, N: i
     pf = p0 + L * dirn
     v0 = dirn * rng.uniform(0, 1.0) + rng.normal(size=N) * 0.3
     a0 = rng.normal(size=N) * 0.3
-    T = float(predict_arrays(p0, v0, a0, pf, np.zeros(N), np.zeros(N), rest, 1.0).duration) * 1.3
+    T = float(_predict(p0, v0, a0, pf, np.zeros(N), np.zeros(N), rest, 1.0).duration) * 1.3
     ps, vs, gs = [], [], []
     for _ in range(mo):
         u = rng.uniform(0.25, 0.75)
@@ -73,7 +75,7 @@ def random_problem(rng, *, n_others: int, mo: int = 10, rest: bool = False, N: i
         gs.append(cross + dj * rng.uniform(2.5, 6.0))
     ps, vs, gs = map(np.array, (ps, vs, gs))
     z = np.zeros_like(ps)
-    others = predict_arrays(ps, vs, z, gs, z, z, rng.uniform(size=mo) < 0.5, 1.0)
+    others = _predict(ps, vs, z, gs, z, z, rng.uniform(size=mo) < 0.5, 1.0)
     mask = np.arange(mo) < n_others
     f = lambda a: jnp.asarray(a, jnp.float64)
     return NLPParams(f(p0), f(v0), f(a0), f(pf), f(np.zeros(N)), f(np.zeros(N)), jnp.asarray(rest),
@@ -96,7 +98,7 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     M, N = pos.shape
     z = jnp.zeros((M, N))
     restv = jnp.broadcast_to(jnp.asarray(rest), (M,))
-    pred = predict_arrays(pos, vel, acc, goals, z, z, restv, 1.0)
+    pred = _predict(pos, vel, acc, goals, z, z, restv, 1.0)
     others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
     w = w if w is not None else weights()
     lim = lim if lim is not None else limits()
