@@ -319,14 +319,34 @@ def _flat_vmap(fn, batch_ndim, *args):
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), out)
 
 
+def _strong(tree):
+    """Leaves as strongly typed arrays (float64 / int32 / bool), so that Python scalars
+    and weakly typed arrays hit the same compiled function as float64 arrays."""
+    def f(a):
+        a = jnp.asarray(a)
+        if jnp.issubdtype(a.dtype, jnp.floating):
+            return jnp.asarray(a, jnp.float64)
+        if jnp.issubdtype(a.dtype, jnp.integer):
+            return jnp.asarray(a, jnp.int32)
+        return jnp.asarray(a, a.dtype)
+    return jax.tree.map(f, tree)
+
+
 @functools.partial(jax.jit, static_argnames=("structure",))
-def solve_batch(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettings = SolverSettings(),
-                multipliers: Multipliers | None = None, penalty=None) -> Solution:
-    """jit(vmap(solve)) over all leading axes of x0 (..., n_x) and params (same leading
-    axes); ``settings`` is shared (traced)."""
+def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty):
     nb = x0.ndim - 1
     fn = lambda p, x, m, pen: solve(p, x, structure, settings, m, pen)
     return _flat_vmap(fn, nb, params, x0, multipliers, penalty)
+
+
+def solve_batch(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettings = SolverSettings(),
+                multipliers: Multipliers | None = None, penalty=None) -> Solution:
+    """jit(vmap(solve)) over all leading axes of x0 (..., n_x) and params (same leading
+    axes); ``settings`` is shared.  Weights, limits and settings are traced: new values
+    (Python scalars or arrays) reuse the compiled function (``_solve_batch_jit``)."""
+    return _solve_batch_jit(_strong(params), _strong(x0), structure, _strong(settings),
+                            None if multipliers is None else _strong(multipliers),
+                            None if penalty is None else _strong(penalty))
 
 
 @functools.partial(jax.jit, static_argnames=("structure",))

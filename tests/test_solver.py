@@ -105,14 +105,14 @@ def test_changing_weights_does_not_recompile():
     ps, P = _s1_batch()
     x0 = solver.initial_guess_batch(P, S1)
     jax.block_until_ready(solver.solve_batch(P, x0, S1))
-    before = solver.solve_batch._cache_size()
+    before = solver._solve_batch_jit._cache_size()
     for q_obs, q_lim in ((3.0, 0.5), (30.0, 2.0)):
         w = P.weights._replace(q_obs=jnp.full(B, q_obs), q_lim=jnp.full(B, q_lim))
         sol = jax.block_until_ready(solver.solve_batch(P._replace(weights=w), x0, S1))
         assert np.mean(np.asarray(sol.status) == solver.CONVERGED) >= 0.9
     settings = solver.SolverSettings(tol_stationarity=1e-9, mu0=5.0)
     jax.block_until_ready(solver.solve_batch(P, x0, S1, settings))
-    assert solver.solve_batch._cache_size() == before
+    assert solver._solve_batch_jit._cache_size() == before
 
 
 def _parked(rest_structure):
