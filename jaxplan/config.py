@@ -76,16 +76,17 @@ __all__ = [
 DEFAULT_REPLAN_HZ = 8.0                  # Hz, the paper's rate
 DEFAULT_Q_DYNM = 1.0                     # smoothness weight on |x'''|^2
 DEFAULT_Q_OBS = 10.0                     # collision weight
-DEFAULT_Q_LIM = 1.0                      # soft-limit weight
-DEFAULT_K_T = 1.0                        # time weight
+DEFAULT_Q_LIM = 2.0                      # soft-limit weight (tuned with k_t: peak speed ~ v_max)
+DEFAULT_K_T = 6.0                        # time weight (k_t / q_lim = 3: cruise at ~v_max)
 DEFAULT_K_P = 5.0                        # 1/m, collision decay rate exp(-K_p (d - rho))
 DEFAULT_COLLISION = "barrier+constraint"  # the literal "paper" term cannot avoid (MATH.md 2)
 DEFAULT_DEGREE = 5
-DEFAULT_SEGMENTS = 1
+DEFAULT_SEGMENTS = 2                     # rest ends need shape freedom (MATH.md 2); paper: 1
 DEFAULT_END_STATE = "free"               # the paper's position-only end state
 DEFAULT_MAX_ITERS = 50                   # solver iterations per replan (bounded loop)
 DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tolerance
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
+DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
 
 DEFAULT_BACKEND = "ideal"
 DEFAULT_DURATION_S = 30.0
@@ -119,7 +120,11 @@ class PlannerConfig:
 
     replan_hz (Hz); q_dynm, q_obs, q_lim, k_t (>= 0) objective weights; k_p (1/m, > 0);
     collision in COLLISION_MODES; degree (>= 5) and segments (>= 1) of the polynomial
-    per axis; end_state "free" | "rest" (default for robots); max_iters, tol, n_samples.
+    per axis; end_state "free" | "rest" (default for robots); max_iters, tol, n_samples;
+    safety_margin_m (m, >= 0): added to every robot's radius in the planner's collision
+    terms only, so that rho_ij is planned with r_i + r_j + 2 margin while metrics still
+    count a collision below r_i + r_j (covers sampling between collision samples and
+    the others' replanning).
     """
 
     replan_hz: float = DEFAULT_REPLAN_HZ
@@ -135,6 +140,7 @@ class PlannerConfig:
     max_iters: int = DEFAULT_MAX_ITERS
     tol: float = DEFAULT_TOL
     n_samples: int = DEFAULT_N_SAMPLES
+    safety_margin_m: float = DEFAULT_SAFETY_MARGIN_M
 
 
 @dataclass(frozen=True)
@@ -388,6 +394,7 @@ def _parse_planner(c: _Ctx, raw: Any) -> PlannerConfig:
         max_iters=c.integer(g("max_iters"), "planner.max_iters", ge=1, le=1_000_000),
         tol=c.number(g("tol"), "planner.tol", gt=0),
         n_samples=c.integer(g("n_samples"), "planner.n_samples", ge=2, le=MAX_SAMPLES),
+        safety_margin_m=c.number(g("safety_margin_m"), "planner.safety_margin_m", ge=0, le=10),
     )
 
 

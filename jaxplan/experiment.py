@@ -81,7 +81,7 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
     M = scenario.start.shape[0]
     settings = slv.SolverSettings(max_iters=pc.max_iters)
     return FleetParams(
-        weights=w, limits=lim, radius=jnp.asarray(scenario.radius),
+        weights=w, limits=lim, radius=jnp.asarray(scenario.radius) + pc.safety_margin_m,
         robot_mask=jnp.ones((M,), bool), dt=jnp.asarray(1.0 / pc.replan_hz),
         t_min=jnp.asarray(T_MIN), prediction_weight=jnp.asarray(pc.k_t / pc.q_dynm),
         accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,

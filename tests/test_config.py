@@ -192,7 +192,8 @@ def test_defaults_are_resolved():
     cfg = parse_config(two(), "dir/my_run.toml")
     assert cfg.name == "my_run" and cfg.seed == 0 and cfg.source == "dir/my_run.toml"
     p = cfg.planner
-    assert (p.replan_hz, p.degree, p.segments, p.end_state) == (8.0, 5, 1, "free")
+    assert (p.replan_hz, p.degree, p.segments, p.end_state) == (8.0, 5, 2, "free")
+    assert p.safety_margin_m == C.DEFAULT_SAFETY_MARGIN_M
     assert (p.q_dynm, p.q_obs, p.q_lim, p.k_t, p.k_p) == (
         C.DEFAULT_Q_DYNM, C.DEFAULT_Q_OBS, C.DEFAULT_Q_LIM, C.DEFAULT_K_T, C.DEFAULT_K_P)
     assert p.collision in C.COLLISION_MODES
