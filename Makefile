@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.installed
 RUN_CONFIG ?= experiments/paper/eight_mixed_transitions.toml
 PYTEST_WORKERS ?= 2
 
-.PHONY: install test test-slow run bench lint figures clean
+.PHONY: install test test-slow run paper sweep studies bench lint clean
 
 # Idempotent: (re)install only when pyproject.toml changed or the venv is missing.
 $(STAMP): pyproject.toml
@@ -25,6 +25,19 @@ test-slow: $(STAMP)
 
 run: $(STAMP)
 	$(VENV)/bin/jaxplan run $(RUN_CONFIG)
+
+# the four paper scenarios, each into runs/<name>/ with its figures
+paper: $(STAMP)
+	for f in experiments/paper/*.toml; do $(VENV)/bin/jaxplan run $$f || exit 1; done
+
+# the Q_obs x Q_lim sweep: sweeps/qobs_qlim/ (sweep.csv, heatmaps in figures/)
+sweep: $(STAMP)
+	$(VENV)/bin/jaxplan sweep experiments/sweeps/qobs_qlim.toml
+
+# the README's collision-mode and fault tables (resumable; long: see experiments/studies.py)
+studies: $(STAMP)
+	$(PY) experiments/studies.py collision --out sweeps/studies
+	$(PY) experiments/studies.py faults --out sweeps/studies
 
 bench: $(STAMP)
 	$(VENV)/bin/jaxplan bench all --json bench.json

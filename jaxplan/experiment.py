@@ -25,7 +25,14 @@ from jaxplan import solver as slv
 from jaxplan.config import Config, build_scenario
 from jaxplan.costs import Limits, NLPStructure, Weights
 from jaxplan.faults import FaultParams, no_faults
-from jaxplan.planner import ACCEPTED, BRAKING, KEPT_PREVIOUS, FleetParams, PlannerStructure
+from jaxplan.planner import (
+    ACCEPTED,
+    BEST_EFFORT,
+    BRAKING,
+    KEPT_PREVIOUS,
+    FleetParams,
+    PlannerStructure,
+)
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
 
@@ -314,6 +321,7 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         "fallbacks": {
             "kept_previous": int(np.sum(fallback == KEPT_PREVIOUS)),
             "braking": int(np.sum(fallback == BRAKING)),
+            "best_effort": int(np.sum(fallback == BEST_EFFORT)),
             "accepted": int(np.sum(fallback == ACCEPTED)),
         },
     }
@@ -359,6 +367,7 @@ def _fault_summary(config, records, sep, min_dist, scenario, frozen_robot) -> di
         "collisions_involving_responsive": responsive_hits,
         "fallback_kept_previous": int(np.sum(fb == KEPT_PREVIOUS)),
         "fallback_braking": int(np.sum(fb == BRAKING)),
+        "fallback_best_effort": int(np.sum(fb == BEST_EFFORT)),
     }
 
 

@@ -13,8 +13,11 @@ vmapped call (:mod:`jaxplan.solver`).  Warm start: the robot's previous plan shi
 the replan period; the first plan starts from its own prediction.
 
 Fallbacks (counted in :class:`ReplanInfo`): a robot whose solve is not accepted keeps
-its previous plan (shifted to now), or, when that plan has run out, a braking plan
-that brings it to rest.  A solve is accepted when its plan is finite, its equality
+its previous plan (shifted to now); when that plan has run out, it flies the rejected
+solve if that is finite and meets its equalities (BEST_EFFORT: e.g. INFEASIBLE because
+another robot's prediction crosses its start; such a plan still weighs the others,
+which a braking plan does not), and only otherwise a braking plan that brings it to
+rest.  A solve is accepted when its plan is finite, its equality
 residual is <= 1e-6 and its status is CONVERGED, or MAX_ITERS with every inequality
 satisfied to ``accept_violation``.  No NaN leaves this step.
 
@@ -38,7 +41,7 @@ MAX_INFLATION = 2.0  # m: a stale sender's radius grows by v_max * age, at most 
 STALE_AFTER_S = 0.5  # s: an older view is a robot holding its last known position
 
 # fallback kinds in ReplanInfo.fallback
-ACCEPTED, KEPT_PREVIOUS, BRAKING = 0, 1, 2
+ACCEPTED, KEPT_PREVIOUS, BRAKING, BEST_EFFORT = 0, 1, 2, 3
 
 
 @dataclass(frozen=True)
@@ -113,7 +116,7 @@ class ReplanInfo(NamedTuple):
     objective: jax.Array
     eq_violation: jax.Array
     ineq_violation: jax.Array
-    fallback: jax.Array  # ACCEPTED / KEPT_PREVIOUS / BRAKING
+    fallback: jax.Array  # ACCEPTED / KEPT_PREVIOUS / BRAKING / BEST_EFFORT
 
 
 def fresh_views(p, v, a, goal_p, goal_v, rest) -> Views:
@@ -138,8 +141,11 @@ def braking_plan(p, v, a, a_max, structure: PlannerStructure) -> Trajectory:
 
     A rest-ended quintic over T_b = max(1.5 |v| / a_max, 0.5 s) to p + v T_b / 2 (the
     stopping point of a constant deceleration), re-expressed on the planner's segments
-    and degree.  Finite for finite input.
+    and degree.  Finite for any input: non-finite entries of p, v, a count as 0 (as in
+    :func:`jaxplan.predict.predict_arrays`), and a lane whose quintic overflows holds at p.
     """
+    fin = lambda x: jnp.where(jnp.isfinite(x), x, 0.0)
+    p, v, a = fin(p), fin(v), fin(a)
     speed = jnp.linalg.norm(v, axis=-1)
     Tb = jnp.maximum(1.5 * speed / jnp.maximum(a_max, 1e-3), 0.5)
     target = p + v * Tb[:, None] * 0.5
@@ -150,6 +156,10 @@ def braking_plan(p, v, a, a_max, structure: PlannerStructure) -> Trajectory:
                           jnp.ones_like(Tb, bool), Tb)
     c = jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)  # (M, N, 6)
     one = Trajectory.from_normalized(c[:, None], Tb, coast=False)
+    ok = jnp.isfinite(Tb) & jnp.all(jnp.isfinite(one.coeffs), axis=(-1, -2, -3))
+    hold = Trajectory.hold(p, 5, 1)
+    one = jax.tree.map(lambda u, w: jnp.where(ok.reshape(ok.shape + (1,) * (u.ndim - 1)), u, w),
+                       one, hold)
     return resample(one, structure.nlp.segments, structure.nlp.degree)
 
 
@@ -189,13 +199,15 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     nlp = structure.nlp
     # predictions from each view, advanced to now by the message's age; a view older
     # than STALE_AFTER_S is taken as a robot holding its last known position
-    fresh = views.age <= STALE_AFTER_S
-    preds = predict_views(views, fp.prediction_weight).shift(jnp.where(fresh, views.age, 0.0))
+    # an age from the future counts as 0, an unknown (NaN) age as infinitely old
+    age = jnp.where(jnp.isnan(views.age), jnp.inf, jnp.maximum(views.age, 0.0))
+    fresh = age <= STALE_AFTER_S
+    preds = predict_views(views, fp.prediction_weight).shift(jnp.where(fresh, age, 0.0))
     held = Trajectory.hold(views.p, preds.degree, preds.num_segments)
     preds = jax.tree.map(lambda u, w: jnp.where(
         fresh.reshape(fresh.shape + (1,) * (u.ndim - 2)), u, w), preds, held)
     # stale information: inflate the other's radius by how far it could have moved since
-    inflate = jnp.minimum(fp.limits.v_max * views.age, MAX_INFLATION)
+    inflate = jnp.minimum(fp.limits.v_max * age, MAX_INFLATION)
     eye = jnp.eye(M, dtype=bool)
     other_mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
     limits_i = Limits(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
@@ -226,10 +238,12 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     prev_ok = ps.has_plan & (prev.duration > 0) & jnp.all(
         jnp.isfinite(prev.coeffs), axis=(-1, -2, -3))
     brake = braking_plan(p, v, a, limits_i.a_max, structure)
-    fallback = jnp.where(accepted, ACCEPTED, jnp.where(prev_ok, KEPT_PREVIOUS, BRAKING))
+    usable = finite & (sol.eq_violation <= 1e-6) & (sol.status != slv.NON_FINITE)
+    fallback = jnp.where(accepted, ACCEPTED, jnp.where(
+        prev_ok, KEPT_PREVIOUS, jnp.where(usable, BEST_EFFORT, BRAKING)))
     sel = lambda c, x, y: jax.tree.map(
         lambda u, w: jnp.where(c.reshape(c.shape + (1,) * (u.ndim - c.ndim)), u, w), x, y)
-    plan = sel(accepted, sol.traj, sel(prev_ok, prev, brake))
+    plan = sel(accepted | (~prev_ok & usable), sol.traj, sel(prev_ok, prev, brake))
     # padding robots hold where they are
     hold = Trajectory.hold(p, nlp.degree, nlp.segments)
     plan = sel(fp.robot_mask, plan, hold)

@@ -9,16 +9,18 @@ import numpy as np
 
 from jaxplan import experiment as ex
 from jaxplan import metrics as mt
+from jaxplan import solver as slv
 from jaxplan.config import build_scenario
 from jaxplan.planner import (
     ACCEPTED,
+    BEST_EFFORT,
     BRAKING,
     KEPT_PREVIOUS,
     braking_plan,
     fresh_views,
     resample,
 )
-from jaxplan.rollout import initial_state, step
+from jaxplan.rollout import initial_state
 from jaxplan.trajectory import Trajectory
 
 
@@ -87,7 +89,9 @@ def test_forced_solver_failure_keeps_previous_plan(tiny_config):
     f = ex.step_runner(structure)
     st = initial_state(task, structure)
     st1, rec1 = f(fp_fail, task, st)
-    assert np.all(np.asarray(rec1.info.fallback) == BRAKING)  # no previous plan yet
+    # no previous plan yet: the rejected but finite solve (its start guess) is flown
+    assert np.all(np.asarray(rec1.info.fallback) == BEST_EFFORT)
+    assert np.all(np.asarray(rec1.info.status) != slv.CONVERGED)
     st2, rec2 = f(fp_fail, task, st1)
     assert np.all(np.asarray(rec2.info.fallback) == KEPT_PREVIOUS)
     # the kept plan is exactly the previous one shifted by the period
@@ -97,6 +101,11 @@ def test_forced_solver_failure_keeps_previous_plan(tiny_config):
                                atol=1e-12)
     for x in jax.tree.leaves(st2):  # no NaN anywhere (reach times are inf until reached)
         assert not np.any(np.isnan(np.asarray(x)))
+    # a solve that cannot be evaluated (NaN weight) and no previous plan: braking
+    fp_nan = fp._replace(weights=fp.weights._replace(q_dynm=jnp.asarray(jnp.nan)))
+    st_b, rec_b = f(fp_nan, task, st)
+    assert np.all(np.asarray(rec_b.info.fallback) == BRAKING)
+    assert np.all(np.isfinite(np.asarray(st_b.plans.plan.coeffs)))
     # with normal settings every lane of the first replan is accepted
     _, rec_ok = f(fp, task, st)
     assert np.all(np.asarray(rec_ok.info.fallback) == ACCEPTED)
