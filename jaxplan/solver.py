@@ -76,7 +76,9 @@ class Solution(NamedTuple):
     last derivative evaluation (= Lagrangian gradient with lam~).  eq_violation: max
     residual of the equality constraints (m, m/s, m/s^2).  ineq_violation: max(0, -g)
     (m^2 for collisions, dimensionless for hard limits).  multipliers, penalty: warm-
-    start the next solve.  decrement: last Newton decrement^2.
+    start the next solve.  decrement: last Newton decrement^2.  Never NaN: objective,
+    kkt_residual, eq_violation, ineq_violation and decrement are +inf where they cannot
+    be evaluated (NON_FINITE lanes, e.g. a NaN weight or an overflowing horizon).
     """
 
     x: jax.Array
@@ -121,14 +123,15 @@ def zero_multipliers(params: NLPParams, structure: NLPStructure) -> Multipliers:
 
 
 def _sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
-    """Replace non-finite own-state entries by 0; report whether all were finite."""
+    """Replace non-finite own-state entries and t_min by 0; report whether all own-state
+    entries and scalars were finite."""
     own = (params.p0, params.v0, params.a0, params.goal_p, params.goal_v, params.goal_a)
     ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in own]))
     scal = jax.tree.leaves((params.weights, params.limits, params.t_min, params.radius))
     ok = ok & jnp.all(jnp.stack([jnp.isfinite(a) for a in scal]))
     fz = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)
     return params._replace(**{k: fz(getattr(params, k)) for k in
-                              ("p0", "v0", "a0", "goal_p", "goal_v", "goal_a")}), ok
+                              ("p0", "v0", "a0", "goal_p", "goal_v", "goal_a", "t_min")}), ok
 
 
 def initial_guess(params: NLPParams, structure: NLPStructure) -> jax.Array:
@@ -295,10 +298,13 @@ def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettin
     hold = Trajectory.hold(params.p0, structure.degree, structure.segments)
     traj = _tree_where(traj_ok, traj, hold._replace(coast=traj.coast))
     obj = costs._terms(x, params, structure, kc, None, 1.0)
+    eq = costs.equality_residual(x, params, structure)
+    no_nan = lambda a: jnp.where(jnp.isnan(a), jnp.inf, a)
     return Solution(
-        x=x, traj=traj, objective=obj, status=status, iterations=st.it,
-        kkt_residual=st.kkt, eq_violation=costs.equality_residual(x, params, structure),
-        ineq_violation=viol, multipliers=st.mult, penalty=st.mu, decrement=st.theta,
+        x=x, traj=traj, objective=no_nan(obj), status=status, iterations=st.it,
+        kkt_residual=no_nan(st.kkt), eq_violation=no_nan(eq),
+        ineq_violation=no_nan(viol), multipliers=st.mult, penalty=st.mu,
+        decrement=no_nan(st.theta),
     )
 
 

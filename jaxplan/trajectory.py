@@ -287,7 +287,7 @@ def _shift_one(c, b, coast, dt):
     S, N, K = c.shape
     T = b[-1]
     dt = jnp.maximum(dt, 0.0)
-    past = dt >= T
+    past = dt > T  # dt == T keeps the whole Taylor expansion at T (a, j included)
     h = b[1:] - b[:-1]
     h_eff = jnp.where(h > 0, h, 1.0)
     new_start = jnp.maximum(b[:-1], dt)
