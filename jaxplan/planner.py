@@ -12,12 +12,13 @@ builds its NLP (:mod:`jaxplan.costs`) and solves it; all robots' NLPs are solved
 vmapped call (:mod:`jaxplan.solver`).  Warm start: the robot's previous plan shifted by
 the replan period; the first plan starts from its own prediction.
 
-Fallbacks (counted in :class:`ReplanInfo`): a robot whose solve is not accepted keeps
-its previous plan (shifted to now); when that plan has run out, it flies the rejected
-solve if that is finite and meets its equalities (BEST_EFFORT: e.g. INFEASIBLE because
-another robot's prediction crosses its start; such a plan still weighs the others,
-which a braking plan does not), and only otherwise a braking plan that brings it to
-rest.  A solve is accepted when its plan is finite, its equality
+Fallbacks (counted in :class:`ReplanInfo`): a robot whose solve is not accepted but is
+finite and meets its equalities flies it anyway (BEST_EFFORT: typically INFEASIBLE
+because it starts inside another robot's planning radius, or another's prediction
+crosses its start; the solve minimized the violation against the newest predictions,
+which an older plan or a braking plan does not know).  Otherwise (a non-finite solve)
+it keeps its previous plan shifted to now, or, when that plan has run out, a braking
+plan that brings it to rest.  A solve is ACCEPTED when its plan is finite, its equality
 residual is <= 1e-6 and its status is CONVERGED, or MAX_ITERS with every inequality
 satisfied to ``accept_violation``.  No NaN leaves this step.
 
@@ -240,10 +241,10 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     brake = braking_plan(p, v, a, limits_i.a_max, structure)
     usable = finite & (sol.eq_violation <= 1e-6) & (sol.status != slv.NON_FINITE)
     fallback = jnp.where(accepted, ACCEPTED, jnp.where(
-        prev_ok, KEPT_PREVIOUS, jnp.where(usable, BEST_EFFORT, BRAKING)))
+        usable, BEST_EFFORT, jnp.where(prev_ok, KEPT_PREVIOUS, BRAKING)))
     sel = lambda c, x, y: jax.tree.map(
         lambda u, w: jnp.where(c.reshape(c.shape + (1,) * (u.ndim - c.ndim)), u, w), x, y)
-    plan = sel(accepted | (~prev_ok & usable), sol.traj, sel(prev_ok, prev, brake))
+    plan = sel(accepted | usable, sol.traj, sel(prev_ok, prev, brake))
     # padding robots hold where they are
     hold = Trajectory.hold(p, nlp.degree, nlp.segments)
     plan = sel(fp.robot_mask, plan, hold)

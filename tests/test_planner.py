@@ -83,29 +83,32 @@ def test_rollout_is_deterministic(tiny_config):
 
 def test_forced_solver_failure_keeps_previous_plan(tiny_config):
     sc, structure, fp, task = _setup(tiny_config)
-    # nothing is accepted: zero iterations never converge, and no violation is small enough
-    fp_fail = fp._replace(settings=fp.settings._replace(max_iters=0),
-                          accept_violation=jnp.asarray(-1.0))
     f = ex.step_runner(structure)
     st = initial_state(task, structure)
-    st1, rec1 = f(fp_fail, task, st)
-    # no previous plan yet: the rejected but finite solve (its start guess) is flown
-    assert np.all(np.asarray(rec1.info.fallback) == BEST_EFFORT)
-    assert np.all(np.asarray(rec1.info.status) != slv.CONVERGED)
-    st2, rec2 = f(fp_fail, task, st1)
+    # a solve that cannot be evaluated (NaN weight -> NON_FINITE) and no previous plan: braking
+    fp_nan = fp._replace(weights=fp.weights._replace(q_dynm=jnp.asarray(jnp.nan)))
+    st1, rec1 = f(fp_nan, task, st)
+    assert np.all(np.asarray(rec1.info.status) == slv.NON_FINITE)
+    assert np.all(np.asarray(rec1.info.fallback) == BRAKING)
+    # again: now the previous (braking) plan is kept, exactly, shifted by the period
+    st2, rec2 = f(fp_nan, task, st1)
     assert np.all(np.asarray(rec2.info.fallback) == KEPT_PREVIOUS)
-    # the kept plan is exactly the previous one shifted by the period
     prev = st1.plans.plan.shift(fp.dt)
     t = np.linspace(0, 1.0, 7)
     np.testing.assert_allclose(np.asarray(st2.plans.plan.sample(t)), np.asarray(prev.sample(t)),
                                atol=1e-12)
     for x in jax.tree.leaves(st2):  # no NaN anywhere (reach times are inf until reached)
         assert not np.any(np.isnan(np.asarray(x)))
-    # a solve that cannot be evaluated (NaN weight) and no previous plan: braking
-    fp_nan = fp._replace(weights=fp.weights._replace(q_dynm=jnp.asarray(jnp.nan)))
-    st_b, rec_b = f(fp_nan, task, st)
-    assert np.all(np.asarray(rec_b.info.fallback) == BRAKING)
-    assert np.all(np.isfinite(np.asarray(st_b.plans.plan.coeffs)))
+    # nothing is accepted (zero iterations never converge, no violation is small enough)
+    # but the solves are finite: they are flown (BEST_EFFORT), not the old plan
+    fp_fail = fp._replace(settings=fp.settings._replace(max_iters=0),
+                          accept_violation=jnp.asarray(-1.0))
+    st3, rec3 = f(fp_fail, task, st2)
+    assert np.all(np.asarray(rec3.info.status) != slv.CONVERGED)
+    assert np.all(np.asarray(rec3.info.fallback) == BEST_EFFORT)
+    kept = st2.plans.plan.shift(fp.dt)
+    assert not np.allclose(np.asarray(st3.plans.plan.sample(t)), np.asarray(kept.sample(t)))
+    assert np.all(np.isfinite(np.asarray(st3.plans.plan.coeffs)))
     # with normal settings every lane of the first replan is accepted
     _, rec_ok = f(fp, task, st)
     assert np.all(np.asarray(rec_ok.info.fallback) == ACCEPTED)
