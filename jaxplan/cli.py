@@ -89,7 +89,8 @@ def summary(m: dict, out: Path) -> str:
         f"{m['name']}: {'SUCCESS' if m['success'] else 'FAILED'}  ({m['robots']} robots, "
         f"backend {m['backend']}, {m['replans']} replans over {m['duration_s']:.1f} s)",
         f"  collisions {m['collisions']}   min separation ratio "
-        f"{f(m['min_separation_ratio'])} (exact, continuous time; < 1 is a collision)",
+        f"{f(m['min_separation_ratio'])} ({m.get('separation_source', 'exact, continuous time')}"
+        "; < 1 is a collision)",
         f"  makespan {f(m['makespan_s'], '{:.2f}')} s   peak speed {f(m['peak_speed'], '{:.2f}')}"
         f" m/s ({f(m['peak_speed_over_limit'], '{:.3f}')} x v_max)",
         f"  reached {sum(r['reached'] for r in m['per_robot'])}/{m['robots']} robots",
@@ -101,6 +102,10 @@ def summary(m: dict, out: Path) -> str:
         f"  compile {m['compile_s']:.1f} s, run {m['run_s']:.2f} s",
         f"  results in {out}/ (metrics.json, trajectories.npz, config.toml, figures/)",
     ]
+    tr = m.get("tracking")
+    if tr:
+        lines.insert(4, f"  tracking error: rms {100 * tr['rms_m']:.2f} cm, max "
+                        f"{100 * tr['max_m']:.2f} cm (simulated vs planned position)")
     return "\n".join(lines)
 
 
