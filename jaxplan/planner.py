@@ -6,8 +6,11 @@ default every view is fresh (:func:`fresh_views`); the structure also carries an
 and a validity flag so that stale or missing messages can be injected.
 
 From its view each robot predicts the others in closed form (:mod:`jaxplan.predict`),
-advanced by the age of the message it came from; a stale sender's radius is inflated by
-how far it could have moved since (its v_max times the age, at most MAX_INFLATION);
+advanced by the age of the message it came from.  An old message costs a larger radius
+(at most MAX_INFLATION): a view up to STALE_AFTER_S old is a prediction advanced from
+the sent state, which can be off by what the sender's acceleration could change since,
+a_max age^2 / 2; an older view is a robot holding its last known position, which can be
+off by how far it could have flown since, v_max age;
 builds its NLP (:mod:`jaxplan.costs`) and solves it; all robots' NLPs are solved in one
 vmapped call (:mod:`jaxplan.solver`).  Warm start: the robot's previous plan shifted by
 the replan period; the first plan starts from its own prediction.
@@ -38,7 +41,7 @@ from jaxplan.costs import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.predict import _quintic_terms, predict_arrays
 from jaxplan.trajectory import Trajectory, _compose_matrix
 
-MAX_INFLATION = 2.0  # m: a stale sender's radius grows by v_max * age, at most this much
+MAX_INFLATION = 2.0  # m: the most a sender's radius grows for an old message
 STALE_AFTER_S = 0.5  # s: an older view is a robot holding its last known position
 
 # fallback kinds in ReplanInfo.fallback
@@ -207,8 +210,10 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     held = Trajectory.hold(views.p, preds.degree, preds.num_segments)
     preds = jax.tree.map(lambda u, w: jnp.where(
         fresh.reshape(fresh.shape + (1,) * (u.ndim - 2)), u, w), preds, held)
-    # stale information: inflate the other's radius by how far it could have moved since
-    inflate = jnp.minimum(fp.limits.v_max * age, MAX_INFLATION)
+    # old information: inflate the other's radius by how far it could be from where the
+    # view puts it (unmodelled acceleration for a prediction, any motion for a hold)
+    grow = jnp.where(fresh, 0.5 * fp.limits.a_max * age**2, fp.limits.v_max * age)
+    inflate = jnp.minimum(grow, MAX_INFLATION)
     eye = jnp.eye(M, dtype=bool)
     other_mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
     limits_i = Limits(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
