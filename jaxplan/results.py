@@ -10,6 +10,8 @@ redrawn from those files with ``jaxplan plot RUN_DIR``.
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import io
 import json
 import math
@@ -26,11 +28,20 @@ REQUIRED_NPZ = ("t", "pos", "vel", "acc", "radius", "goal", "vehicle",
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory + rename."""
+    """Write ``data`` to ``path`` via a temporary file in the same directory + rename.
+
+    The file gets the usual permissions (0666 minus the umask; mkstemp's are 0600), and
+    temporary files left by an earlier killed write of the same name are removed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    for old in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        with contextlib.suppress(OSError):
+            old.unlink()
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
