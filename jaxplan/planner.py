@@ -41,7 +41,10 @@ from jaxplan.costs import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.predict import _quintic_terms, predict_arrays
 from jaxplan.trajectory import Trajectory, _compose_matrix
 
-MAX_INFLATION = 2.0  # m: the most a sender's radius grows for an old message
+# m: the most a sender's radius grows for an old message.  A silent robot is taken to
+# hold its last known position within this much: with 2 m a robot frozen mid-course
+# walled off a 2.6 m ball and the robot whose goal lay inside it never arrived.
+MAX_INFLATION = 0.5
 STALE_AFTER_S = 0.5  # s: an older view is a robot holding its last known position
 
 # fallback kinds in ReplanInfo.fallback
