@@ -18,13 +18,13 @@ import re
 import signal
 import subprocess
 import sys
-import time
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests._proc import kill_when
 from tests.conftest import TINY_TOML
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,20 +51,8 @@ def crash_env(tmp_path_factory):
 
 def _kill_when(cmd, env, cwd, ready, timeout=300.0) -> None:
     """Start cmd, SIGKILL it as soon as ready() holds (polled every ms)."""
-    proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, start_new_session=True)
-    try:
-        deadline = time.monotonic() + timeout
-        while not ready():
-            assert proc.poll() is None, proc.stderr.read().decode()[-3000:]
-            assert time.monotonic() < deadline, "the run never reached its write phase"
-            time.sleep(0.001)
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGKILL)
-            proc.wait()
+    proc = kill_when(cmd, env, cwd, ready, timeout=timeout, poll=0.001,
+                     what="the run never reached its write phase")
     # killed, not finished: the kill landed before the last figure was in place
     assert proc.returncode == -signal.SIGKILL, proc.returncode
 

@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 import tomllib
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import numpy as np
 import pytest
 
 from jaxplan.config import parse_config
+from tests._proc import kill_when
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -218,20 +218,8 @@ def test_sigkill_then_resume_gives_the_same_rows(sweep_env, uninterrupted):
     whole, _ = uninterrupted
     out = d / "killed"
     csv_path = out / "sweep.csv"
-    proc = subprocess.Popen(_sweep_cmd(cfg, out), env=env, cwd=d, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 600
-        while _data_lines(csv_path) == 0:
-            assert proc.poll() is None, proc.stderr.read().decode()[-3000:]
-            assert time.monotonic() < deadline, "no batch finished in time"
-            time.sleep(0.02)
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGKILL)
-            proc.wait()
+    proc = kill_when(_sweep_cmd(cfg, out), env, d, lambda: _data_lines(csv_path) > 0,
+                     timeout=600, poll=0.02, what="no batch finished in time")
     assert proc.returncode == -signal.SIGKILL
     n_killed = _data_lines(csv_path)
     assert 1 <= n_killed < 8, n_killed  # killed mid-sweep: the batch in flight was lost
