@@ -98,7 +98,8 @@ def summary(m: dict, out: Path) -> str:
         f"{f(s['p95_ms'], '{:.1f}')} ms, max {f(s['max_ms'], '{:.1f}')} ms; "
         f"converged {f(s['converged_frac'], '{:.1%}')}",
         f"  fallbacks: kept previous plan {m['fallbacks']['kept_previous']}, "
-        f"braking {m['fallbacks']['braking']}, best effort {m['fallbacks']['best_effort']}",
+        f"braking {m['fallbacks']['braking']}, best effort {m['fallbacks']['best_effort']}, "
+        f"goal occupied {m['fallbacks'].get('goal_occupied', 0)}",
         f"  compile {m['compile_s']:.1f} s, run {m['run_s']:.2f} s",
         f"  results in {out}/ (metrics.json, trajectories.npz, config.toml, figures/)",
     ]

@@ -323,6 +323,7 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
             "braking": int(np.sum(fallback == BRAKING)),
             "best_effort": int(np.sum(fallback == BEST_EFFORT)),
             "accepted": int(np.sum(fallback == ACCEPTED)),
+            "goal_occupied": int(np.sum(np.asarray(info.goal_moved))),
         },
     }
     t = np.arange(0.0, duration + 1e-9, 1.0 / SAMPLE_HZ)
@@ -368,6 +369,7 @@ def _fault_summary(config, records, sep, min_dist, scenario, frozen_robot) -> di
         "fallback_kept_previous": int(np.sum(fb == KEPT_PREVIOUS)),
         "fallback_braking": int(np.sum(fb == BRAKING)),
         "fallback_best_effort": int(np.sum(fb == BEST_EFFORT)),
+        "goal_occupied": int(np.sum(np.asarray(records.info.goal_moved))),
     }
 
 

@@ -44,6 +44,7 @@ reached_frac (robots that reached their last waypoint), waypoints_frac (waypoint
 reached / waypoints, mean over robots: progress through a multi-transition scenario),
 peak_speed_ratio (max speed / v_max, max over robots), converged_frac,
 iterations_median, fallbacks_kept_previous, fallbacks_braking, fallbacks_best_effort,
+fallbacks_goal_occupied (robot replans that planned to a point beside an occupied goal),
 robots, duration_s,
 replans, error (empty unless the run's metrics could not be computed).  Solver timing
 per replan is not measured in sweeps (one batch is one program).
@@ -97,7 +98,8 @@ KEY_COLUMNS = ("q_obs", "q_lim", "scenario", "seed")
 COLUMNS = KEY_COLUMNS + (
     "success", "collisions", "min_separation_ratio", "makespan_s", "mean_time_to_goal_s",
     "reached_frac", "waypoints_frac", "peak_speed_ratio", "converged_frac", "iterations_median",
-    "fallbacks_kept_previous", "fallbacks_braking", "fallbacks_best_effort", "robots", "duration_s", "replans",
+    "fallbacks_kept_previous", "fallbacks_braking", "fallbacks_best_effort",
+    "fallbacks_goal_occupied", "robots", "duration_s", "replans",
     "error",
 )
 DEFAULT_BATCH = 27  # runs per batch on an accelerator
@@ -323,6 +325,7 @@ def _row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
         "fallbacks_kept_previous": _fmt(int(metrics["fallbacks"]["kept_previous"])),
         "fallbacks_braking": _fmt(int(metrics["fallbacks"]["braking"])),
         "fallbacks_best_effort": _fmt(int(metrics["fallbacks"]["best_effort"])),
+        "fallbacks_goal_occupied": _fmt(int(metrics["fallbacks"].get("goal_occupied", 0))),
         "robots": _fmt(int(metrics["robots"])),
         "duration_s": _fmt(metrics["duration_s"]),
         "replans": _fmt(int(metrics["replans"])),

@@ -1,0 +1,134 @@
+"""Goals another robot occupies (planner.free_goals and a run beside a frozen robot)."""
+
+import tomllib
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxplan.config import parse_config
+from jaxplan.experiment import run
+from jaxplan.planner import GOAL_CLEARANCE, MAX_INFLATION, free_goals
+
+R = 0.4  # planning radius of each robot in the unit tests
+
+
+def _call(goal, p, occupants, inflate=MAX_INFLATION, mask=None):
+    """One observer (robot 0) and len(occupants) others."""
+    M = 1 + len(occupants)
+    occ = np.zeros((M, M, 3))
+    occ[0, 1:] = occupants
+    goals = np.zeros((M, 3))
+    goals[0] = goal
+    pos = np.zeros((M, 3))
+    pos[0] = p
+    m = np.ones((M, M), bool) & ~np.eye(M, dtype=bool) if mask is None else mask
+    g, inf, moved = free_goals(jnp.asarray(goals), jnp.asarray(pos), jnp.asarray(occ),
+                               jnp.full((M,), R), jnp.full((M, M), inflate), jnp.asarray(m))
+    return np.asarray(g)[0], np.asarray(inf)[0], bool(np.asarray(moved)[0])
+
+
+def test_free_goal_is_left_alone():
+    g, inf, moved = _call([3.0, 0, 0], [5.0, 0, 0], [[0.0, 0, 0]])
+    np.testing.assert_array_equal(g, [3.0, 0, 0])
+    assert inf[1] == MAX_INFLATION and not moved
+
+
+def test_inflation_shrinks_so_the_goal_stays_reachable():
+    d = 2 * R + 0.2  # outside both radii, inside the inflated distance
+    g, inf, moved = _call([d, 0, 0], [5.0, 0, 0], [[0.0, 0, 0]])
+    np.testing.assert_array_equal(g, [d, 0, 0])
+    assert not moved
+    assert inf[1] == pytest.approx(d - 2 * R - GOAL_CLEARANCE, abs=1e-12)
+    # the goal is then GOAL_CLEARANCE outside the planning distance
+    assert d - (2 * R + inf[1]) == pytest.approx(GOAL_CLEARANCE, abs=1e-12)
+
+
+def test_occupied_goal_moves_to_the_nearest_free_point():
+    g, inf, moved = _call([0.3, 0.1, 0], [5.0, 0, 0], [[0.0, 0, 0]])
+    assert moved and inf[1] == 0.0
+    u = np.array([0.3, 0.1, 0]) / np.linalg.norm([0.3, 0.1, 0])
+    np.testing.assert_allclose(g, (2 * R + GOAL_CLEARANCE) * u, atol=1e-12)
+
+
+def test_coincident_goal_moves_towards_the_robot():
+    g, _, moved = _call([1.0, 1.0, 1.0], [1.0, 4.0, 1.0], [[1.0, 1.0, 1.0]])
+    assert moved
+    np.testing.assert_allclose(g, [1.0, 1.0 + 2 * R + GOAL_CLEARANCE, 1.0], atol=1e-12)
+    # robot, goal and occupant all coincident: a fixed direction, still finite
+    g, _, moved = _call([0.0, 0, 0], [0.0, 0, 0], [[0.0, 0, 0]])
+    assert moved and np.all(np.isfinite(g))
+    assert np.linalg.norm(g) == pytest.approx(2 * R + GOAL_CLEARANCE)
+
+
+def test_two_occupants_goal_ends_outside_both():
+    occ = [[0.0, 0, 0], [0.0, 1.0, 0]]
+    g, _, moved = _call([0.2, 0.5, 0], [5.0, 0.5, 0], occ)
+    assert moved
+    for c in occ:
+        assert np.linalg.norm(g - np.asarray(c)) >= 2 * R + GOAL_CLEARANCE - 1e-9
+
+
+def test_masked_or_nonfinite_occupants_are_ignored():
+    mask = np.zeros((2, 2), bool)
+    g, inf, moved = _call([0.1, 0, 0], [5.0, 0, 0], [[0.0, 0, 0]], mask=mask)
+    np.testing.assert_array_equal(g, [0.1, 0, 0])
+    assert not moved and inf[1] == MAX_INFLATION
+    g, _, moved = _call([0.1, 0, 0], [5.0, 0, 0], [[np.nan, 0, 0]])
+    np.testing.assert_array_equal(g, [0.1, 0, 0])
+    assert not moved
+
+
+FROZEN = """
+name = "beside_frozen"
+seed = 0
+[sim]
+duration_s = 10.0
+[faults]
+enabled = true
+frozen_robot = 0
+frozen_at_s = 0.0
+frozen_mode = "silent"
+[planner]
+end_state = "rest"
+[[robots]]
+vehicle = "firefly"
+start = [0.0, 0.0, 1.5]
+goal = [0.0, -3.0, 1.5]
+[[robots]]
+vehicle = "firefly"
+start = [4.0, 0.0, 1.5]
+goal = [{gx}, 0.0, 1.5]
+"""
+
+
+@pytest.fixture(scope="module")
+def beside_frozen():
+    """Robot 1 flies to a goal gx m from robot 0, which never moves and never talks."""
+    def go(gx):
+        return run(parse_config(tomllib.loads(FROZEN.format(gx=gx)), source="frozen.toml"))
+    return go
+
+
+def test_goal_inside_the_inflation_of_a_silent_robot_is_reached(beside_frozen):
+    # planning distance 0.73 m (two 0.315 m Fireflys + 0.05 m margins); a silent robot
+    # is inflated by up to MAX_INFLATION: 0.95 m lies inside that, outside the radii
+    res = beside_frozen(0.95)
+    m = res.metrics
+    assert m["per_robot"][1]["reached"], m["per_robot"][1]
+    assert m["collisions"] == 0
+    assert m["faults"]["collisions_involving_responsive"] == 0
+
+
+def test_goal_inside_a_frozen_robot_waits_beside_it(beside_frozen):
+    res = beside_frozen(0.5)  # inside the planning distance: unreachable, safely
+    m = res.metrics
+    assert m["collisions"] == 0
+    assert not m["per_robot"][1]["reached"]
+    assert m["fallbacks"]["goal_occupied"] > 0
+    assert m["faults"]["goal_occupied"] == m["fallbacks"]["goal_occupied"]
+    end = res.arrays["pos"][1, -1]
+    # it waits at the nearest free point, not somewhere else
+    d = np.linalg.norm(end - np.array([0.0, 0.0, 1.5]))
+    assert 0.73 - 1e-3 <= d <= 0.73 + GOAL_CLEARANCE + 0.02
+    assert np.linalg.norm(end - np.array([0.5, 0.0, 1.5])) < 0.3
