@@ -85,7 +85,7 @@ def _rotorpy_controller(v):
 
 
 def test_matches_rotorpy_hummingbird():
-    pytest.importorskip("rotorpy")
+    import rotorpy  # noqa: F401  (a dev dependency: fail, never skip, without it)
     v = get_vehicle("hummingbird")
     rp = _rotorpy_controller(v)
     params = se3.se3_params(v)
