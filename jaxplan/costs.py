@@ -523,13 +523,20 @@ def _has_collision(structure):
 
 
 # ---------------------------------------------------------------------- values
-def _terms(x, params, structure, kc, mult: Multipliers | None, mu):
-    """Objective (+ AL terms if ``mult`` given): exact values, differentiable in x."""
+def _terms(x, params, structure, kc, mult: Multipliers | None, mu, with_g: bool = False):
+    """Objective (+ AL terms if ``mult`` given): exact values, differentiable in x.
+
+    With ``with_g`` also the inequality constraints g(x) (as :func:`constraints`, bitwise
+    equal), sharing the features and the other robots' positions: (value, Multipliers).
+    """
     b = basis(structure)
+    Mo = params.other_mask.shape[-1]
     val = _smooth_time(x, params, structure, kc)
     yq = _features(x, params, structure, kc.quad, (1, 2, 3))
     val = val + jnp.sum(jax.vmap(lambda y, w: _limits_local(y, w, params, structure))(yq, jnp.asarray(b.quad_w)))
+    gc = jnp.ones((len(b.col_s), Mo), x.dtype)
     if _has_collision(structure):
+        N = structure.n_dim
         yc = _features(x, params, structure, kc.col, _col_derivs(structure))
         T = yc[0, -1]
         s = jnp.asarray(b.col_s)
@@ -542,9 +549,18 @@ def _terms(x, params, structure, kc, mult: Multipliers | None, mu):
 
         vals = jax.vmap(one)(yc, jet[0], o1, s, jnp.asarray(b.col_w), lam)
         val = val + jnp.sum(vals)
-    if structure.hard_limits and mult is not None:
+        if with_g and structure.collision_constraints:
+            dx = yc[:, None, :N] - jet[0]
+            rho = params.radius + params.other_radius
+            gc = jnp.where(params.other_mask, jnp.sum(dx * dx, axis=-1) - rho**2, 1.0)
+    gh = jnp.ones((len(b.lim_s), 3), x.dtype)
+    if structure.hard_limits and (mult is not None or with_g):
         yh = _features(x, params, structure, kc.lim, (1, 2, 3))
-        val = val + jnp.sum(jax.vmap(lambda y, l: _hard_local(y, l, params, structure, mu))(yh, mult.limits))
+        if mult is not None:
+            val = val + jnp.sum(jax.vmap(lambda y, l: _hard_local(y, l, params, structure, mu))(yh, mult.limits))
+        gh = jax.vmap(lambda y: _hard_g(y, params, structure))(yh)
+    if with_g:
+        return val, Multipliers(gc, gh)
     return val
 
 
@@ -590,6 +606,12 @@ def _constraints(x, params, structure, kc):
 def merit(x, params, structure, kc, mult: Multipliers, mu):
     """Augmented Lagrangian value: objective + AL terms of the inequality constraints."""
     return _terms(x, params, structure, kc, mult, mu)
+
+
+def merit_and_constraints(x, params, structure, kc, mult: Multipliers, mu):
+    """(:func:`merit`, :func:`constraints`) at x in one pass (shared features and
+    other-robot positions; what a line search needs at its accepted point)."""
+    return _terms(x, params, structure, kc, mult, mu, with_g=True)
 
 
 # ---------------------------------------------------------------------- derivatives

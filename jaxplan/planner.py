@@ -244,14 +244,22 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
         limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
     )
 
-    x_cold = jax.vmap(lambda pr: slv.initial_guess(pr, nlp))(params)
-    x_warm = jax.vmap(lambda prev, pr: slv.warm_start(prev, fp.dt, pr, nlp))(ps.plan, params)
-    x0 = jnp.where(ps.has_plan[:, None], x_warm, x_cold)
+    # warm starts; cold guesses (25 objective evaluations each) only when some robot
+    # has no usable previous plan
+    nan_x = jnp.full((nlp.n_x,), jnp.nan)
+    x_warm = jax.vmap(lambda prev, pr: slv.warm_start(prev, fp.dt, pr, nlp, nan_x))(
+        ps.plan, params)
+    need_cold = ~ps.has_plan | ~jnp.all(jnp.isfinite(x_warm), axis=-1)
+    x_cold = jax.lax.cond(
+        jnp.any(need_cold), lambda: jax.vmap(lambda pr: slv.initial_guess(pr, nlp))(params),
+        lambda: jnp.zeros((M, nlp.n_x)))
+    x0 = jnp.where(need_cold[:, None], x_cold, x_warm)
     mult = jax.tree.map(lambda m: jnp.where(
         ps.has_plan.reshape((M,) + (1,) * (m.ndim - 1)), m, 0.0), ps.multipliers)
     pen = jnp.where(ps.has_plan, ps.penalty, fp.settings.mu0)
     settings = fp.settings
-    sol = jax.vmap(lambda pr, x, m, pe: slv.solve(pr, x, nlp, settings, m, pe))(
+    # x0 is finite (initial_guess is finite for any input): no fallback guess needed
+    sol = jax.vmap(lambda pr, x, m, pe: slv.solve(pr, x, nlp, settings, m, pe, x))(
         params, x0, mult, pen)
 
     finite = jnp.all(jnp.isfinite(sol.traj.coeffs), axis=(-1, -2, -3)) & jnp.all(

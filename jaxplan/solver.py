@@ -159,13 +159,16 @@ def initial_guess(params: NLPParams, structure: NLPStructure) -> jax.Array:
     return xs[jnp.argmin(fs)]
 
 
-def warm_start(prev: Trajectory, dt, params: NLPParams, structure: NLPStructure) -> jax.Array:
+def warm_start(prev: Trajectory, dt, params: NLPParams, structure: NLPStructure,
+               fallback=None) -> jax.Array:
     """x0 from the previous plan shifted by ``dt`` seconds (receding horizon).
 
     The shifted plan (T' = T - dt, >= t_min) is re-fitted, by least squares on dense
     position samples, to the equal-segment parametrization through the CURRENT start
-    state and goal of ``params``.  Falls back to :func:`initial_guess` when the previous
-    plan is degenerate (non-finite, or T - dt < t_min).
+    state and goal of ``params``.  Falls back to ``fallback`` (default
+    :func:`initial_guess`) when the previous plan is degenerate (non-finite, or
+    T - dt < t_min); pass NaNs to find out where it did (the planner then computes cold
+    guesses only when some robot needs one).
     """
     p, _ = _sanitize(params)
     kc = costs.kind_constants(p.rest, structure)
@@ -179,7 +182,9 @@ def warm_start(prev: Trajectory, dt, params: NLPParams, structure: NLPStructure)
     zt = kc.fit_pinv @ (tgt - kc.fit_B @ e)  # (nz, N)
     x = costs.pack(zt.T, jnp.log(Ts))
     ok = ok & jnp.all(jnp.isfinite(x))
-    return jnp.where(ok, x, initial_guess(params, structure))
+    if fallback is None:
+        fallback = initial_guess(params, structure)
+    return jnp.where(ok, x, fallback)
 
 
 def _direction(H, grad, reg):
@@ -192,7 +197,7 @@ def _direction(H, grad, reg):
 
 
 def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettings = SolverSettings(),
-          multipliers: Multipliers | None = None, penalty=None) -> Solution:
+          multipliers: Multipliers | None = None, penalty=None, x_fallback=None) -> Solution:
     """Solve one robot's NLP from x0 (pure; vmap/jit at the call site).
 
     Args:
@@ -200,13 +205,18 @@ def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettin
         structure: static NLPStructure.  settings: SolverSettings (traced).
         multipliers, penalty: optional warm start of the augmented Lagrangian (e.g. the
             previous Solution's); default zeros and settings.mu0.
+        x_fallback: (n_x,) start used where x0 is not finite; default
+            :func:`initial_guess` (which then costs its evaluation under vmap even where
+            x0 is finite: a caller that already has a finite x0 or a guess passes it).
     Returns:
         Solution.
     """
     s = settings
     params, finite_in = _sanitize(params)
     x0 = jnp.asarray(x0, jnp.float64)
-    x0 = jnp.where(jnp.all(jnp.isfinite(x0)), x0, initial_guess(params, structure))
+    if x_fallback is None:
+        x_fallback = initial_guess(params, structure)
+    x0 = jnp.where(jnp.all(jnp.isfinite(x0)), x0, x_fallback)
     tau_min = jnp.log(jnp.maximum(params.t_min, 1e-6))
     x0 = x0.at[-1].set(jnp.maximum(x0[-1], tau_min))
     kc = costs.kind_constants(params.rest, structure)
@@ -251,25 +261,31 @@ def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettin
         cap = jnp.minimum(cap, s.max_step_z / jnp.maximum(jnp.max(jnp.abs(d[:-1]), initial=0.0), 1e-300))
         d = d * cap
 
-        def trial(a):
+        def point(a):
             xt = x + a * d
-            xt = xt.at[-1].set(jnp.maximum(xt[-1], tau_min))
-            ft = merit(xt, mult, mu)
+            return xt.at[-1].set(jnp.maximum(xt[-1], tau_min))
+
+        def trial(a):
+            # the constraint values come with the merit: no second pass at the new point
+            xt = point(a)
+            ft, gt = costs.merit_and_constraints(xt, params, structure, kc, mult, mu)
             ok = jnp.isfinite(ft) & (ft <= f + s.armijo * (grp @ (xt - x)))
-            return xt, ok
+            return ok, gt
 
         def ls_cond(c):
-            a, k, ok = c
+            a, k, ok, _ = c
             return (~ok) & (k < s.max_backtracks)
 
         def ls_body(c):
-            a, k, _ = c
+            a, k, _, _ = c
             a = a * 0.5
-            return a, k + 1, trial(a)[1]
+            return (a, k + 1) + trial(a)
 
-        a, k, ok = jax.lax.while_loop(ls_cond, ls_body, (jnp.asarray(1.0), 0, trial(1.0)[1]))
-        x_new = jnp.where(ok, trial(a)[0], x)
-        g_new = costs._constraints(x_new, params, structure, kc)
+        a, k, ok, g_try = jax.lax.while_loop(ls_cond, ls_body,
+                                             (jnp.asarray(1.0), 0) + trial(jnp.asarray(1.0)))
+        x_new = jnp.where(ok, point(a), x)
+        # st.g holds the constraints at st.x (invariant), g_try those at the accepted point
+        g_new = _tree_where(ok, g_try, st.g)
         pending = (theta <= s.inner_tol * scale) | ~ok
         kkt = jnp.max(jnp.abs(grp))
         new = _State(x_new, mult, mu, g_new, viol_ref, pending, st.it + 1, conv | ~finite,
