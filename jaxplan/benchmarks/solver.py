@@ -180,7 +180,9 @@ def _slsqp_serial(case, structure):
                 rel_gap_max=float(max(gaps)), rel_gap_median=float(np.median(gaps)))
 
 
-def run(quick: bool = False, structure: NLPStructure | None = None) -> dict:
+def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool = True) -> dict:
+    """Run every part of the benchmark (module docstring); print it unless ``echo`` is
+    False; return the figures."""
     structure = structure or NLPStructure()
     settings = solver.SolverSettings()
     rng = np.random.default_rng(0)
@@ -208,15 +210,13 @@ def run(quick: bool = False, structure: NLPStructure | None = None) -> dict:
     sol, ms = _timed(lambda P, x0: solver.solve_batch(P, x0, structure, settings), P, x0, repeats=2 if quick else 3)
     res["batch64x10"] = dict(ms=ms, solves_per_s=640 / (ms / 1e3), compile_s=comp,
                              converged=float(np.mean(np.asarray(sol.status) == 0)))
+    if echo:
+        report(res)
     return res
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="jaxplan bench solver")
-    ap.add_argument("--json", default=None)
-    ap.add_argument("--quick", action="store_true")
-    a = ap.parse_args(argv)
-    res = run(quick=a.quick)
+def report(res: dict) -> None:
+    """Print the benchmark's figures (what `jaxplan bench solver` shows)."""
     f10, f100, b = res["fleet10"], res["fleet100"], res["batch64x10"]
     sc, sw = res["slsqp10_cold"], res["slsqp10_warm"]
     print(f"M=10  cold {f10['cold_ms']:.1f} ms (conv {f10['cold_conv']:.0%}, iters<= {f10['cold_iters']})  "
@@ -226,7 +226,16 @@ def main(argv=None) -> int:
     print(f"objective gap (jax - slsqp)/max(1,|slsqp|): cold max {sc['rel_gap_max']:.2e} median {sc['rel_gap_median']:.2e}; "
           f"warm max {sw['rel_gap_max']:.2e}; violation jax {sc['jax_max_violation']:.1e} slsqp {sc['max_violation']:.1e}")
     print(f"M=100 cold {f100['cold_ms']:.1f} ms warm {f100['warm_ms']:.1f} ms (conv {f100['warm_conv']:.0%}) compile {f100['compile_s']:.1f} s")
-    print(f"64x10 batch {b['ms']:.1f} ms -> {b['solves_per_s']:.0f} robot-NLP solves/s (conv {b['converged']:.0%}) compile {b['compile_s']:.1f} s")
+    print(f"64x10 batch {b['ms']:.1f} ms -> {b['solves_per_s']:.0f} robot-NLP solves/s (conv {b['converged']:.0%}) compile {b['compile_s']:.1f} s",
+          flush=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="jaxplan bench solver")
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args(argv)
+    res = run(quick=a.quick)
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(res, fh, indent=2, default=str)
