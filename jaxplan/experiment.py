@@ -388,7 +388,8 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
 
     Args:
         config: a validated Config (jaxplan.config.load_config / parse_config).
-        progress: show a tqdm progress bar over replans.
+        progress: show progress over replans (a tqdm bar on a terminal, a line every
+            30 s otherwise: jaxplan.progress).
     """
     scenario = build_scenario(config)
     structure = structures(config)
@@ -396,9 +397,9 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
     task = task_of(config, scenario)
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        from jaxplan.progress import progress_bar
 
-        bar = tqdm(total=structure.steps, desc=f"{config.name}", unit="replan", leave=False)
+        bar = progress_bar(structure.steps, config.name, "replan", leave=False)
 
     def _prog(n):
         if bar is not None:

@@ -61,7 +61,6 @@ import dataclasses
 import io
 import math
 import os
-import sys
 import threading
 import time
 import tomllib
@@ -567,10 +566,9 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
         def open_bar():  # after the first compilation, so that the ETA counts runs only
             if not progress:
                 return None
-            from tqdm.auto import tqdm
+            from jaxplan.progress import progress_bar
 
-            return tqdm(total=len(points), initial=skipped, unit="run", desc=config.name,
-                        dynamic_ncols=True, smoothing=0.0, file=sys.stderr)
+            return progress_bar(len(points), config.name, "run", initial=skipped)
 
         try:
             for (n_dim, n_wp), pts in groups.items():
