@@ -4,7 +4,7 @@
     description = ""                  # free text
     seed = 0                          # 0 <= seed < 2**63; seeds every random choice
     [planner]  replan_hz, q_dynm, q_obs, q_lim, k_t, k_p, collision, degree, segments,
-               end_state, max_iters, tol, n_samples
+               end_state, max_iters, tol, n_samples, safety_margin_m, max_neighbors
     [limits]   v_max, a_max, j_max    (optional overrides of the per-vehicle defaults)
     [sim]      backend, duration_s, physics_hz, control_hz, goal_tolerance_m,
                goal_speed_tolerance_mps
@@ -87,6 +87,7 @@ DEFAULT_MAX_ITERS = 50                   # solver iterations per replan (bounded
 DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tolerance
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
 DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
+DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
 
 DEFAULT_BACKEND = "ideal"
 DEFAULT_DURATION_S = 30.0
@@ -124,7 +125,9 @@ class PlannerConfig:
     safety_margin_m (m, >= 0): added to every robot's radius in the planner's collision
     terms only, so that rho_ij is planned with r_i + r_j + 2 margin while metrics still
     count a collision below r_i + r_j (covers sampling between collision samples and
-    the others' replanning).
+    the others' replanning).  max_neighbors (>= 0): 0 puts every other robot in each
+    robot's NLP; K >= 1 only the K that come nearest to its own prediction (the NLP's
+    cost then stays flat as the fleet grows; jaxplan.planner.nearest_neighbors).
     """
 
     replan_hz: float = DEFAULT_REPLAN_HZ
@@ -141,6 +144,7 @@ class PlannerConfig:
     tol: float = DEFAULT_TOL
     n_samples: int = DEFAULT_N_SAMPLES
     safety_margin_m: float = DEFAULT_SAFETY_MARGIN_M
+    max_neighbors: int = DEFAULT_MAX_NEIGHBORS
 
 
 @dataclass(frozen=True)
@@ -395,6 +399,8 @@ def _parse_planner(c: _Ctx, raw: Any) -> PlannerConfig:
         tol=c.number(g("tol"), "planner.tol", gt=0),
         n_samples=c.integer(g("n_samples"), "planner.n_samples", ge=2, le=MAX_SAMPLES),
         safety_margin_m=c.number(g("safety_margin_m"), "planner.safety_margin_m", ge=0, le=10),
+        max_neighbors=c.integer(g("max_neighbors"), "planner.max_neighbors", ge=0,
+                                le=MAX_ROBOTS),
     )
 
 

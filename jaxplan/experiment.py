@@ -68,7 +68,8 @@ def structures(config: Config) -> RolloutStructure:
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults
-    return RolloutStructure(planner=PlannerStructure(nlp=nlp, max_iters=pc.max_iters),
+    return RolloutStructure(planner=PlannerStructure(nlp=nlp, max_iters=pc.max_iters,
+                                                             max_neighbors=pc.max_neighbors),
                             steps=steps, faults=fc.enabled,
                             latency_periods=round(fc.latency_s * pc.replan_hz) if fc.enabled
                             else 0)

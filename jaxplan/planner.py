@@ -70,10 +70,19 @@ class PlannerStructure:
     """Static planner settings (hashable; a change recompiles).
 
     nlp: the NLP's static structure.  max_iters: solver iteration cap.
+    max_neighbors: 0 (every other robot is in each robot's NLP) or K >= 1: each robot's
+    NLP holds only the K others that come nearest to its own closed-form prediction
+    (:func:`nearest_neighbors`); the NLP's cost then grows with K, not with the fleet.
     """
 
     nlp: NLPStructure = field(default_factory=NLPStructure)
     max_iters: int = 60
+    max_neighbors: int = 0
+
+    def others(self, M: int) -> int:
+        """Other-robot slots in each NLP of an M-robot fleet (M: the fleet, padded)."""
+        K = self.max_neighbors
+        return K if 0 < K < M - 1 else M
 
 
 class FleetParams(NamedTuple):
@@ -120,13 +129,16 @@ class PlanState(NamedTuple):
     """Per-robot planner memory carried between replans.
 
     plan: Trajectory (M,), each starting at the time of the last replan.  has_plan: (M,).
-    multipliers, penalty: augmented-Lagrangian warm start.
+    multipliers, penalty: augmented-Lagrangian warm start.  neighbors: (M, Mo) int32, the
+    robot in each other-robot slot of the NLPs (with ``max_neighbors``; -1: none), so
+    that multipliers follow their robot when the selection changes.
     """
 
     plan: Trajectory
     has_plan: jax.Array
     multipliers: Multipliers
     penalty: jax.Array
+    neighbors: jax.Array
 
 
 class ReplanInfo(NamedTuple):
@@ -237,9 +249,22 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     goal_p, inflate, goal_moved = free_goals(goal_p, p, preds.end_state()[0], fp.radius,
                                              inflate, other_mask)
     limits_i = Limits(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
+    other_radius = fp.radius[None, :] + inflate
+    Mo = structure.others(M)
+    mult_prev = ps.multipliers
+    if Mo < M:
+        idx = nearest_neighbors(preds, other_radius, other_mask, Mo)
+        take = lambda u: jnp.take_along_axis(u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)),
+                                             axis=1)
+        preds, other_radius, other_mask = (jax.tree.map(take, preds), take(other_radius),
+                                           take(other_mask))
+        mult_prev = mult_prev._replace(
+            collision=remap_slots(mult_prev.collision, ps.neighbors, idx))
+    else:
+        idx = jnp.broadcast_to(jnp.arange(M, dtype=jnp.int32), (M, M))
     params = NLPParams(
         p0=p, v0=v, a0=a, goal_p=goal_p, goal_v=goal_v, goal_a=jnp.zeros_like(p), rest=rest,
-        others=preds, other_radius=fp.radius[None, :] + inflate, other_mask=other_mask,
+        others=preds, other_radius=other_radius, other_mask=other_mask,
         radius=fp.radius, weights=jax.tree.map(lambda w: jnp.broadcast_to(w, (M,)), fp.weights),
         limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
     )
@@ -255,7 +280,7 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
         lambda: jnp.zeros((M, nlp.n_x)))
     x0 = jnp.where(need_cold[:, None], x_cold, x_warm)
     mult = jax.tree.map(lambda m: jnp.where(
-        ps.has_plan.reshape((M,) + (1,) * (m.ndim - 1)), m, 0.0), ps.multipliers)
+        ps.has_plan.reshape((M,) + (1,) * (m.ndim - 1)), m, 0.0), mult_prev)
     pen = jnp.where(ps.has_plan, ps.penalty, fp.settings.mu0)
     settings = fp.settings
     # x0 is finite (initial_guess is finite for any input): no fallback guess needed
@@ -285,7 +310,7 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
 
     new_mult = sel(accepted, sol.multipliers, jax.tree.map(jnp.zeros_like, sol.multipliers))
     new_pen = jnp.where(accepted, sol.penalty, settings.mu0)
-    new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen)
+    new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32))
     info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
                       sol.ineq_violation, fallback.astype(jnp.int32),
                       goal_moved & fp.robot_mask)
@@ -338,15 +363,57 @@ def free_goals(goal_p, p, occupant, radius, inflate, mask):
 def initial_plan_state(p, structure: PlannerStructure, n_others: int) -> PlanState:
     """Planner memory before the first replan: no plans (first solves start cold).
 
-    Args: p (M, N) start positions; n_others: M (others are padded to the fleet size).
+    Args: p (M, N) start positions; n_others: M, the fleet size (each NLP holds
+    ``structure.others(M)`` other-robot slots).
     """
     M = p.shape[0]
+    Mo = structure.others(n_others)
     nlp = structure.nlp
     plan = Trajectory.hold(p, nlp.degree, nlp.segments)
-    dummy = _dummy_params(p.shape[-1], n_others)
+    dummy = _dummy_params(p.shape[-1], Mo)
     mult = slv.zero_multipliers(dummy, nlp)
     mult = jax.tree.map(lambda m: jnp.zeros((M,) + m.shape), mult)
-    return PlanState(plan, jnp.zeros((M,), bool), mult, jnp.zeros((M,)))
+    return PlanState(plan, jnp.zeros((M,), bool), mult, jnp.zeros((M,)),
+                     jnp.full((M, Mo), -1, jnp.int32))
+
+
+def remap_slots(lam, old_idx, new_idx):
+    """Collision multipliers (M, Kc, Mo) from the old other-robot slots to the new ones:
+    each follows its robot; a robot new to the selection starts at 0.
+
+    Args: lam (M, Kc, Mo); old_idx, new_idx (M, Mo) int (the robot in each slot; -1: none).
+    """
+    match = (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx[:, :, None] >= 0)
+    return jnp.einsum("mco,mno->mcn", lam, match.astype(lam.dtype))
+
+
+NEIGHBOR_HORIZON_S = (1.0, 10.0)  # s: the window nearest_neighbors looks over (clipped)
+NEIGHBOR_SAMPLES = 16
+
+
+def nearest_neighbors(preds: Trajectory, other_radius, mask, K: int):
+    """For each robot i, the K others that come nearest to it: (M, K) int32 indices.
+
+    Nearness of j to i: the least clearance, min_t |x_i(t) - x_j(t)| - r_j, over
+    NEIGHBOR_SAMPLES times spanning robot i's own closed-form prediction x_i (its view of
+    itself, ``preds[i, i]``; its duration clipped to NEIGHBOR_HORIZON_S), x_j being i's
+    prediction of j.  Masked or non-finite others come last.
+
+    Args: preds: Trajectory (M, M) as in :func:`replan`.  other_radius: (M, M) m.
+    mask: (M, M) bool.  K: static, 1 <= K <= M.
+    """
+    M = mask.shape[0]
+    ar = jnp.arange(M)
+    own = jax.tree.map(lambda u: u[ar, ar], preds)
+    lo, hi = NEIGHBOR_HORIZON_S
+    H = jnp.clip(jnp.where(jnp.isfinite(own.duration), own.duration, hi), lo, hi)
+    t = H[:, None] * jnp.linspace(0.0, 1.0, NEIGHBOR_SAMPLES)  # (M, S)
+    xi = own.sample(t)  # (M, S, N)
+    xj = preds.sample(t[:, None, :])  # (M, M, S, N)
+    d = jnp.min(jnp.linalg.norm(xj - xi[:, None], axis=-1), axis=-1) - other_radius
+    d = jnp.where(mask & jnp.isfinite(d), d, jnp.inf)
+    _, idx = jax.lax.top_k(-d, K)
+    return idx.astype(jnp.int32)
 
 
 def _dummy_params(N: int, Mo: int) -> NLPParams:

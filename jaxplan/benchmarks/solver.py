@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxplan  # noqa: F401  (float64)
+from jaxplan import planner as _planner
 from jaxplan import solver
 from jaxplan.costs import Limits, NLPParams, NLPStructure, Weights
 from jaxplan.predict import predict_arrays
@@ -92,20 +93,37 @@ def index_params(p: NLPParams, i) -> NLPParams:
 
 
 def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=None,
-                 t_min=0.1) -> NLPParams:
+                 t_min=0.1, max_neighbors: int = 0, return_neighbors: bool = False):
     """The M NLPs of one fleet replan: robot i sees all M predictions (w = 1, the paper's
-    prediction), itself masked out.  pos, vel, acc, goals: (M, N)."""
+    prediction), itself masked out.  pos, vel, acc, goals: (M, N).
+
+    max_neighbors K > 0: each NLP holds only the K others that
+    :func:`jaxplan.planner.nearest_neighbors` picks (as the planner does with
+    ``[planner] max_neighbors``).  return_neighbors: also return the (M, K) indices.
+    """
     M, N = pos.shape
     z = jnp.zeros((M, N))
     restv = jnp.broadcast_to(jnp.asarray(rest), (M,))
     pred = _predict(pos, vel, acc, goals, z, z, restv, 1.0)
     others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
+    orad = jnp.full((M, M), radius)
+    mask = ~jnp.eye(M, dtype=bool)
+    idx = jnp.broadcast_to(jnp.arange(M), (M, M))
+    if 0 < max_neighbors < M - 1:
+        idx = _nearest(others, orad, mask, max_neighbors)
+        take = lambda u: jnp.take_along_axis(u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)), axis=1)
+        others, orad, mask = jax.tree.map(take, others), take(orad), take(mask)
     w = w if w is not None else weights()
     lim = lim if lim is not None else limits()
     bc = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float64), (M,))
-    return NLPParams(jnp.asarray(pos), jnp.asarray(vel), jnp.asarray(acc), jnp.asarray(goals), z, z, restv,
-                     others, jnp.full((M, M), radius), ~jnp.eye(M, dtype=bool), bc(radius),
-                     jax.tree.map(bc, w), jax.tree.map(bc, lim), bc(t_min))
+    P = NLPParams(jnp.asarray(pos), jnp.asarray(vel), jnp.asarray(acc), jnp.asarray(goals), z, z, restv,
+                  others, orad, mask, bc(radius),
+                  jax.tree.map(bc, w), jax.tree.map(bc, lim), bc(t_min))
+    return (P, idx) if return_neighbors else P
+
+
+_nearest = jax.jit(lambda preds, orad, mask, K: _planner.nearest_neighbors(preds, orad, mask, K),
+                   static_argnums=3)
 
 
 def antipodal(M: int, radius_m: float, rng, N: int = 3):
@@ -119,6 +137,7 @@ def antipodal(M: int, radius_m: float, rng, N: int = 3):
 
 # ---------------------------------------------------------------------- benchmark
 DT = 0.125
+NEIGHBORS_K = 16  # the 100-robot fleet's neighbour count in the max_neighbors variant
 
 
 def _timed(fn, *args, repeats=5):
@@ -131,12 +150,12 @@ def _timed(fn, *args, repeats=5):
     return out, 1e3 * statistics.median(ts)
 
 
-def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats):
+def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighbors=0):
     """Cold solve, then ``steps`` warm replans 1/8 s apart (ideal tracking)."""
     pos, goals = antipodal(M, radius_m, rng)
     vel = np.zeros_like(pos)
     acc = np.zeros_like(pos)
-    P = fleet_params(pos, vel, acc, goals)
+    P, idx = fleet_params(pos, vel, acc, goals, max_neighbors=max_neighbors, return_neighbors=True)
     t0 = time.perf_counter()
     x0 = jax.block_until_ready(solver.initial_guess_batch(P, structure))
     sol = jax.block_until_ready(solver.solve_batch(P, x0, structure, settings))
@@ -148,10 +167,14 @@ def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats):
     for _ in range(steps):
         tr = sol.traj
         pos, vel, acc = (np.asarray(a) for a in tr.state_at(jnp.full(tr.batch_shape, DT)))
-        P = fleet_params(pos, vel, acc, goals)
+        P, idx_new = fleet_params(pos, vel, acc, goals, max_neighbors=max_neighbors,
+                                  return_neighbors=True)
         x0 = ws(tr, P)
+        mult = sol.multipliers._replace(
+            collision=_planner.remap_slots(sol.multipliers.collision, idx, idx_new))
+        idx = idx_new
         fn = lambda P, x0, m, mu: solver.solve_batch(P, x0, structure, settings, m, mu)
-        sol, ms = _timed(fn, P, x0, sol.multipliers, sol.penalty, repeats=repeats)
+        sol, ms = _timed(fn, P, x0, mult, sol.penalty, repeats=repeats)
         warm_ms.append(ms)
         warm_conv.append(float(np.mean(np.asarray(sol.status) == solver.CONVERGED)))
         warm_iters.append(int(np.max(sol.iterations)))
@@ -195,8 +218,14 @@ def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool =
     res["slsqp10_warm"] = _slsqp_serial(warm10[0], structure)
     res["ratio_cold"] = res["slsqp10_cold"]["ms"] / r10["cold_ms"]
     res["ratio_warm"] = res["slsqp10_warm"]["ms"] / r10["warm_ms"]
-    r100, _, _ = _fleet_run(100, 15.0, structure, settings, rng, 2 if quick else 3, 2 if quick else 3)
+    # 100 robots, every other robot in each NLP (cost ~ M^2): few repeats, it is slow
+    r100, _, _ = _fleet_run(100, 15.0, structure, settings, np.random.default_rng(1), 2, 1)
     res["fleet100"] = r100
+    # the same fleet with each NLP holding its K nearest others ([planner] max_neighbors)
+    res["neighbors_k"] = NEIGHBORS_K
+    r100k, _, _ = _fleet_run(100, 15.0, structure, settings, np.random.default_rng(1),
+                             2 if quick else 4, 2 if quick else 3, max_neighbors=NEIGHBORS_K)
+    res["fleet100_k"] = r100k
     # (e) 64 scenarios x 10 robots in one batch
     Ps = []
     for _ in range(64):
@@ -226,6 +255,11 @@ def report(res: dict) -> None:
     print(f"objective gap (jax - slsqp)/max(1,|slsqp|): cold max {sc['rel_gap_max']:.2e} median {sc['rel_gap_median']:.2e}; "
           f"warm max {sw['rel_gap_max']:.2e}; violation jax {sc['jax_max_violation']:.1e} slsqp {sc['max_violation']:.1e}")
     print(f"M=100 cold {f100['cold_ms']:.1f} ms warm {f100['warm_ms']:.1f} ms (conv {f100['warm_conv']:.0%}) compile {f100['compile_s']:.1f} s")
+    if "fleet100_k" in res:
+        fk = res["fleet100_k"]
+        print(f"M=100, {res['neighbors_k']} nearest others per NLP: cold {fk['cold_ms']:.1f} ms "
+              f"(conv {fk['cold_conv']:.0%}) warm {fk['warm_ms']:.1f} ms (conv {fk['warm_conv']:.0%}) "
+              f"compile {fk['compile_s']:.1f} s")
     print(f"64x10 batch {b['ms']:.1f} ms -> {b['solves_per_s']:.0f} robot-NLP solves/s (conv {b['converged']:.0%}) compile {b['compile_s']:.1f} s",
           flush=True)
 
