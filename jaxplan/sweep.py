@@ -73,7 +73,7 @@ import jax
 import numpy as np
 
 from jaxplan import scenarios as _sc
-from jaxplan.config import Config, build_scenario, config_to_toml
+from jaxplan.config import Config, ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.costs import Weights
 from jaxplan.experiment import compute_metrics, fleet_params, structures, task_of
 from jaxplan.results import atomic_write_text
@@ -347,6 +347,13 @@ def _guard_config(out: Path, config: Config) -> None:
             old = tomllib.loads(path.read_text("utf-8"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
             raise SweepError(f"{path}: unreadable ({e}); use another --out") from None
+        # compare resolved configs: a key added later with its default (written by this
+        # version, absent from an older config.toml) is no difference
+        try:
+            old = tomllib.loads(config_to_toml(parse_config(old, source=str(path))))
+        except ConfigError as e:
+            raise SweepError(f"{path}: not a config this version reads ({e}); use another "
+                             "--out") from None
         new = tomllib.loads(text)
         strip = lambda d: {k: v for k, v in d.items() if k not in _FREE_TABLES}  # noqa: E731
         if strip(old) != strip(new):

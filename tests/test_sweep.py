@@ -142,6 +142,29 @@ def test_a_directory_made_with_another_config_is_refused(tmp_path):
         _guard_config(tmp_path, _config(SWEEP_TOML.replace("3.0", "4.0")))
 
 
+def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
+    import tomllib
+
+    from jaxplan.config import config_to_toml
+    from jaxplan.sweep import SweepError, _guard_config
+
+    cfg = _config()
+    doc = tomllib.loads(config_to_toml(cfg))
+    assert doc["planner"].pop("max_neighbors") == 0  # as an older version wrote it
+    import tomli_w
+
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    _guard_config(tmp_path, cfg)  # same config: accepted
+    doc["planner"]["max_neighbors"] = 4
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    with pytest.raises(SweepError, match="different config.*planner"):
+        _guard_config(tmp_path, cfg)
+    doc["planner"]["no_such_key"] = 1
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    with pytest.raises(SweepError, match="not a config this version reads"):
+        _guard_config(tmp_path, cfg)
+
+
 # ----------------------------------------------------------------------------- end to end
 
 
