@@ -243,7 +243,7 @@ def _gauss01(n: int):
     return (x + 1) / 2, w / 2
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def basis(structure: NLPStructure) -> Basis:
     """Static matrices of a structure (numpy, cached)."""
     D, S = structure.degree, structure.segments
@@ -263,7 +263,7 @@ def basis(structure: NLPStructure) -> Basis:
     def rows(r, sigma):
         k, s = _seg_local(np.asarray(sigma, float), S)
         out = np.zeros((len(k), nc))
-        for i, (kk, ss) in enumerate(zip(k, s)):
+        for i, (kk, ss) in enumerate(zip(k, s, strict=True)):
             out[i, kk * (D + 1) : (kk + 1) * (D + 1)] = _beta(r, ss, D)
         return out
 
@@ -323,7 +323,8 @@ def basis(structure: NLPStructure) -> Basis:
 def kind_constants(rest, structure: NLPStructure) -> _Kind:
     """The constants of the lane's end-state kind (traced ``rest`` flag selects)."""
     b = basis(structure)
-    return jax.tree.map(lambda f, r: jnp.where(rest, jnp.asarray(r), jnp.asarray(f)), b.free, b.rest)
+    return jax.tree.map(lambda f, r: jnp.where(rest, jnp.asarray(r), jnp.asarray(f)),
+                        b.free, b.rest)
 
 
 # ---------------------------------------------------------------------- variables
@@ -340,7 +341,8 @@ def pack(z, tau):
 def boundary_vector(params: NLPParams, h):
     """e(h) (6, N) = [p0, v0 h, a0 h^2, pf, vf h, af h^2]."""
     return jnp.stack(
-        [params.p0, params.v0 * h, params.a0 * h**2, params.goal_p, params.goal_v * h, params.goal_a * h**2]
+        [params.p0, params.v0 * h, params.a0 * h**2,
+         params.goal_p, params.goal_v * h, params.goal_a * h**2]
     )
 
 
@@ -533,7 +535,8 @@ def _terms(x, params, structure, kc, mult: Multipliers | None, mu, with_g: bool 
     Mo = params.other_mask.shape[-1]
     val = _smooth_time(x, params, structure, kc)
     yq = _features(x, params, structure, kc.quad, (1, 2, 3))
-    val = val + jnp.sum(jax.vmap(lambda y, w: _limits_local(y, w, params, structure))(yq, jnp.asarray(b.quad_w)))
+    val = val + jnp.sum(jax.vmap(lambda y, w: _limits_local(y, w, params, structure))(
+        yq, jnp.asarray(b.quad_w)))
     gc = jnp.ones((len(b.col_s), Mo), x.dtype)
     if _has_collision(structure):
         N = structure.n_dim
@@ -545,7 +548,8 @@ def _terms(x, params, structure, kc, mult: Multipliers | None, mu, with_g: bool 
         lam = mult.collision if mult is not None else None
 
         def one(y, a0, a1, sk, wk, lk):
-            return _collision_local(y, (a0, a1, 0.0, 0.0), sk, wk, lk, 0.0, params, structure, mu, False)
+            return _collision_local(y, (a0, a1, 0.0, 0.0), sk, wk, lk, 0.0, params, structure, mu,
+                                    False)
 
         vals = jax.vmap(one)(yc, jet[0], o1, s, jnp.asarray(b.col_w), lam)
         val = val + jnp.sum(vals)
@@ -557,7 +561,8 @@ def _terms(x, params, structure, kc, mult: Multipliers | None, mu, with_g: bool 
     if structure.hard_limits and (mult is not None or with_g):
         yh = _features(x, params, structure, kc.lim, (1, 2, 3))
         if mult is not None:
-            val = val + jnp.sum(jax.vmap(lambda y, l: _hard_local(y, l, params, structure, mu))(yh, mult.limits))
+            val = val + jnp.sum(jax.vmap(lambda y, l: _hard_local(y, l, params, structure, mu))(
+                yh, mult.limits))
         gh = jax.vmap(lambda y: _hard_g(y, params, structure))(yh)
     if with_g:
         return val, Multipliers(gc, gh)
@@ -666,7 +671,8 @@ def _radial(X, u, w, T, a, b):
     N = X.shape[-1]
     Hpp = 4.0 * jnp.einsum("j,jn,jm->nm", cdd, X, X) + 2.0 * jnp.sum(cd) * jnp.eye(N, dtype=X.dtype)
     HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1)[:, None] * X + 2.0 * cd[:, None] * u, axis=0)
-    HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * (jnp.sum(u * u, -1) + jnp.sum(X * w, -1)) + 4.0 * a1 * Xu)
+    HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * (jnp.sum(u * u, -1) + jnp.sum(X * w, -1))
+                  + 4.0 * a1 * Xu)
     g = jnp.concatenate([gp, gT[None]])
     H = jnp.zeros((N + 1, N + 1), X.dtype)
     H = H.at[:N, :N].set(Hpp).at[:N, N].set(HpT).at[N, :N].set(HpT).at[N, N].set(HTT)
@@ -686,7 +692,8 @@ def _collision_radial(y, o0, o1, o2, s, w, lam, params, structure, mu):
     wt = params.weights
     zero = (jnp.zeros_like(r),) * 3
     if structure.barrier:
-        af = lambda rr: jnp.where(mask, wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
+        af = lambda rr: jnp.where(
+            mask, wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
         a = _d012(af, r)
     else:
         a = zero
@@ -714,11 +721,11 @@ def _limits_radial(y, w, lam, params, structure, mu, soft: bool):
         r = jnp.sum(X * X, axis=-1)
         zero = (jnp.zeros_like(r),) * 3
         if soft:
-            a = _d012(lambda rr: params.weights.q_lim * w * sexp(rr - tau**2), r)
+            a = _d012(lambda rr, tau=tau: params.weights.q_lim * w * sexp(rr - tau**2), r)
             b = zero
         else:
             a = zero
-            b = _d012(lambda rr: al_term(1.0 - rr / tau**2, lam[k], mu), r)
+            b = _d012(lambda rr, tau=tau, k=k: al_term(1.0 - rr / tau**2, lam[k], mu), r)
         v, gk, Hk = _radial(X, zN, zN, T, a, b)
         idx = jnp.asarray(list(range(k * N, (k + 1) * N)) + [n - 1])
         val = val + v
@@ -749,17 +756,20 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
         R = 3 if structure.paper else 2
         jet = _others_derivs(params.others, params.other_mask, T * s, R)
         jet = jet + [jnp.zeros_like(jet[0])] * (4 - len(jet))
-        lam = mult.collision if structure.collision_constraints else jnp.zeros(jet[0].shape[:2], x.dtype)
+        lam = (mult.collision if structure.collision_constraints
+               else jnp.zeros(jet[0].shape[:2], x.dtype))
         if structure.paper:
             def loc(y, jk, sk, wk, lk):
                 return _vgh(
-                    lambda yy: _collision_local(yy, jk, sk, wk, lk, T, params, structure, mu, True), y
+                    lambda yy: _collision_local(yy, jk, sk, wk, lk, T, params, structure, mu, True),
+                    y,
                 )
 
             vc, gc, Hc = jax.vmap(loc)(yc, jet, s, jnp.asarray(b.col_w), lam)
         else:
             vc, gc, Hc = jax.vmap(
-                lambda y, a0, a1, a2, sk, wk, lk: _collision_radial(y, a0, a1, a2, sk, wk, lk, params, structure, mu)
+                lambda y, a0, a1, a2, sk, wk, lk: _collision_radial(
+                    y, a0, a1, a2, sk, wk, lk, params, structure, mu)
             )(yc, jet[0], jet[1], jet[2], s, jnp.asarray(b.col_w), lam)
         v, g, H = _assemble(featc, x, vc, gc, Hc)
         total_v, total_g, total_H = total_v + v, total_g + g, total_H + H

@@ -67,7 +67,7 @@ def _quartic_terms(p0, v0, a0, pf, vf, af, full):
         g[2] = g[2] + 3.0 * (64.0 * v * v + 112.0 * v * V + 64.0 * V * V - 40.0 * (a - A) * D)
         g[3] = g[3] + 24.0 * (3.0 * a * v + 2.0 * a * V - 2.0 * A * v - 3.0 * A * V)
         g[4] = g[4] + 3.0 * (3.0 * a * a - 2.0 * a * A + 3.0 * A * A)
-    return [jnp.where(full, gk, fk) for fk, gk in zip(f, g)]
+    return [jnp.where(full, gk, fk) for fk, gk in zip(f, g, strict=True)]
 
 
 def _axes(x):
@@ -135,7 +135,7 @@ def _root_bounds_terms(a):
     K = len(a)
     n = K - 1
     nz = [ak != 0 for ak in a]
-    logm = [jnp.log(jnp.where(z, jnp.abs(ak), 1.0)) for ak, z in zip(a, nz)]
+    logm = [jnp.log(jnp.where(z, jnp.abs(ak), 1.0)) for ak, z in zip(a, nz, strict=True)]
     # upper: 2 max_{k<n} (|a_k| / |a_n|)^(1/(n-k)), the a_0 term halved
     log_hi = jnp.full_like(logm[0], -jnp.inf)
     for k in range(n):

@@ -37,7 +37,7 @@ class SLSQPResult(NamedTuple):
     callback_s: float
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _evaluator(structure: NLPStructure):
     def ev(x, params):
         f, gf = jax.value_and_grad(costs.objective)(x, params, structure)
@@ -67,7 +67,8 @@ def solve_slsqp(params: NLPParams, x0, structure: NLPStructure, *, ftol_rel: flo
             f, gf, g, J = jax.device_get(ev(jnp.asarray(x), params))
             stats["t"] += time.perf_counter() - t0
             stats["n"] += 1
-            cache.update(x=x.copy(), f=float(f), gf=np.asarray(gf), g=np.asarray(g), J=np.asarray(J))
+            cache.update(x=x.copy(), f=float(f), gf=np.asarray(gf), g=np.asarray(g),
+                         J=np.asarray(J))
         return cache
 
     def fobj(x, grad):
@@ -109,5 +110,7 @@ def solve_slsqp(params: NLPParams, x0, structure: NLPStructure, *, ftol_rel: flo
     wall = time.perf_counter() - t0
     c = evaluate(np.asarray(x))
     viol = float(np.max(np.maximum(-c["g"], 0.0), initial=0.0))
-    ok = code > 0 and code not in (nlopt.MAXEVAL_REACHED, nlopt.MAXTIME_REACHED) and np.isfinite(c["f"])
-    return SLSQPResult(np.asarray(x), c["f"], viol, bool(ok), int(code), stats["n"], wall, stats["t"])
+    ok = (code > 0 and code not in (nlopt.MAXEVAL_REACHED, nlopt.MAXTIME_REACHED)
+          and np.isfinite(c["f"]))
+    return SLSQPResult(np.asarray(x), c["f"], viol, bool(ok), int(code), stats["n"], wall,
+                       stats["t"])

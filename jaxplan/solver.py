@@ -196,7 +196,8 @@ def _direction(H, grad, reg):
     return d
 
 
-def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettings = SolverSettings(),
+def solve(params: NLPParams, x0, structure: NLPStructure,
+          settings: SolverSettings = SolverSettings(),
           multipliers: Multipliers | None = None, penalty=None, x_fallback=None) -> Solution:
     """Solve one robot's NLP from x0 (pure; vmap/jit at the call site).
 
@@ -258,7 +259,8 @@ def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettin
             compl <= s.tol_complementarity * scale)
         # 4. capped step and projected Armijo backtracking on L_A
         cap = jnp.minimum(1.0, s.max_step_tau / jnp.maximum(jnp.abs(d[-1]), 1e-300))
-        cap = jnp.minimum(cap, s.max_step_z / jnp.maximum(jnp.max(jnp.abs(d[:-1]), initial=0.0), 1e-300))
+        cap = jnp.minimum(
+            cap, s.max_step_z / jnp.maximum(jnp.max(jnp.abs(d[:-1]), initial=0.0), 1e-300))
         d = d * cap
 
         def point(a):
@@ -299,7 +301,8 @@ def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettin
     def cond(st: _State):
         return (~st.done) & (st.it < s.max_iters)
 
-    st0 = _State(x0, mult0, mu0, g0, jnp.asarray(jnp.inf), jnp.asarray(False), jnp.asarray(0, jnp.int32),
+    st0 = _State(x0, mult0, mu0, g0, jnp.asarray(jnp.inf), jnp.asarray(False),
+                 jnp.asarray(0, jnp.int32),
                  jnp.asarray(False), jnp.asarray(False), jnp.asarray(jnp.inf), jnp.asarray(jnp.inf))
     st = jax.lax.while_loop(cond, body, st0)
 
@@ -308,7 +311,8 @@ def solve(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettin
     viol = _max_violation(costs._constraints(x, params, structure, kc))
     conv = st.done & ~bad
     status = jnp.where(bad, NON_FINITE, jnp.where(conv, CONVERGED,
-                       jnp.where(viol > s.tol_feasibility, INFEASIBLE, MAX_ITERS))).astype(jnp.int32)
+                       jnp.where(viol > s.tol_feasibility, INFEASIBLE, MAX_ITERS))
+                       ).astype(jnp.int32)
     traj = costs.to_trajectory(x, params, structure)
     traj_ok = jnp.all(jnp.isfinite(traj.coeffs)) & jnp.all(jnp.isfinite(traj.breaks))
     hold = Trajectory.hold(params.p0, structure.degree, structure.segments)
@@ -361,7 +365,8 @@ def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty):
     return _flat_vmap(fn, nb, params, x0, multipliers, penalty)
 
 
-def solve_batch(params: NLPParams, x0, structure: NLPStructure, settings: SolverSettings = SolverSettings(),
+def solve_batch(params: NLPParams, x0, structure: NLPStructure,
+                settings: SolverSettings = SolverSettings(),
                 multipliers: Multipliers | None = None, penalty=None) -> Solution:
     """jit(vmap(solve)) over all leading axes of x0 (..., n_x) and params (same leading
     axes); ``settings`` is shared.  Weights, limits and settings are traced: new values

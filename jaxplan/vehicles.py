@@ -158,4 +158,4 @@ def get_vehicle(name: str) -> Vehicle:
 
 
 assert all(math.isclose(v.radius, r, abs_tol=1e-9) for v, r in
-           zip(VEHICLES.values(), (0.27, 0.315, 0.4292)))
+           zip(VEHICLES.values(), (0.27, 0.315, 0.4292), strict=True))

@@ -76,9 +76,8 @@ def test_frozen_robot_silent_or_stale(stale):
 
 
 def test_run_with_faults_is_reproducible_and_finite(tmp_path):
-    from tests.conftest import TINY_TOML
-
     from jaxplan.experiment import run
+    from tests.conftest import TINY_TOML
 
     text = TINY_TOML.replace("[sim]", "[faults]\nenabled = true\nmessage_loss = 0.3\n"
                              "noise_sigma_m = 0.02\nfrozen_robot = 2\nfrozen_at_s = 0.5\n[sim]")
@@ -119,9 +118,8 @@ def test_fault_config_errors(table, key):
 def test_frozen_robot_out_of_range():
     import tomllib
 
-    from tests.conftest import TINY_TOML
-
     from jaxplan.config import build_scenario
+    from tests.conftest import TINY_TOML
 
     text = TINY_TOML.replace("[sim]", "[faults]\nenabled = true\nfrozen_robot = 3\n[sim]")
     cfg = parse_config(tomllib.loads(text), source="f.toml")

@@ -43,7 +43,8 @@ def _np_eval(c, t, d):
     """c (..., N, 6) monomials in seconds -> d-th derivative at t (...,)."""
     out = []
     for ax in range(c.shape[-2]):
-        vals = [np.polynomial.Polynomial(ci).deriv(d)(ti) for ci, ti in zip(c[:, ax], t)]
+        vals = [np.polynomial.Polynomial(ci).deriv(d)(ti)
+                for ci, ti in zip(c[:, ax], t, strict=True)]
         out.append(vals)
     return np.array(out).T
 
@@ -54,7 +55,7 @@ def test_boundary_conditions(solved):
     z = np.zeros(len(T))
     scale = 1 + np.abs(np.stack([p0, pf])).max(axis=(0, 2))[:, None]
     np.testing.assert_allclose(_np_eval(c, z, 0), p0, rtol=0, atol=1e-12 * scale.max())
-    for got, ref, d in [(_np_eval(c, z, 1), v0, 1), (_np_eval(c, z, 2), a0, 2)]:
+    for got, ref, _d in [(_np_eval(c, z, 1), v0, 1), (_np_eval(c, z, 2), a0, 2)]:
         assert np.all(np.abs(got - ref) <= 1e-9 * (1 + np.abs(ref)))
     pe = _np_eval(c, T, 0)
     assert np.all(np.abs(pe - pf) <= 1e-9 * scale)
@@ -91,7 +92,7 @@ def test_T_is_global_minimizer(solved):
         k = int(np.argmin(Jg))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
         res = minimize_scalar(
-            lambda t: float(cost(t, q[i], w[i])), bounds=(lo, hi), method="bounded",
+            lambda t, i=i: float(cost(t, q[i], w[i])), bounds=(lo, hi), method="bounded",
             options={"xatol": 1e-12 * hi},
         )
         J_ref = min(res.fun, Jg[k])
@@ -154,7 +155,8 @@ def test_scale_property(log_scale, seed, end, moving):
 
 
 @settings(max_examples=30, deadline=None)
-@given(p=st.lists(st.floats(-1e4, 1e4), min_size=3, max_size=3), end=st.sampled_from(["free", "rest"]))
+@given(p=st.lists(st.floats(-1e4, 1e4), min_size=3, max_size=3),
+       end=st.sampled_from(["free", "rest"]))
 def test_at_goal_gives_finite_hold(p, end):
     p = np.array(p)
     tr = predict(p, np.zeros(3), np.zeros(3), p, end=end)
@@ -162,7 +164,8 @@ def test_at_goal_gives_finite_hold(p, end):
     for d in range(4):
         v = np.asarray(tr.sample(np.array([0.0, 1.0, 10.0]), d))
         assert np.all(np.isfinite(v))
-    np.testing.assert_allclose(np.asarray(tr.evaluate(3.0)), p, rtol=1e-15, atol=1e-300)  # XLA flushes subnormals
+    # XLA flushes subnormals
+    np.testing.assert_allclose(np.asarray(tr.evaluate(3.0)), p, rtol=1e-15, atol=1e-300)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])

@@ -13,7 +13,7 @@ import pytest
 
 import jaxplan  # noqa: F401
 from jaxplan import costs, solver
-from jaxplan.benchmarks.solver import random_problem, stack_params, index_params, weights
+from jaxplan.benchmarks.solver import index_params, random_problem, stack_params
 from jaxplan.costs import NLPStructure
 from jaxplan.reference import solve_slsqp
 from jaxplan.trajectory import Trajectory
@@ -28,10 +28,11 @@ _warm = jax.jit(lambda tr, p: solver.warm_start(tr, 0.125, p, S1))
 
 def _problems(seed, n=B):
     rng = np.random.default_rng(seed)
-    return [random_problem(rng, n_others=int(rng.integers(2, 11)), rest=bool(i % 2)) for i in range(n)]
+    return [random_problem(rng, n_others=int(rng.integers(2, 11)), rest=bool(i % 2))
+            for i in range(n)]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _random_results(mode):
     ps = _problems(100 + MODES.index(mode))
     P = stack_params(ps)
@@ -79,7 +80,7 @@ def test_objective_no_worse_than_slsqp(mode):
     assert max(worse) <= 1e-3, worse
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _s1_batch():
     ps = _problems(7)
     bad = ps[3]._replace(p0=ps[3].p0.at[0].set(jnp.nan))
@@ -156,4 +157,5 @@ def test_warm_start_is_finite_for_degenerate_previous_plans():
         assert np.all(np.isfinite(x))
     sol = _one(p, solver.initial_guess(p, S1))
     x = _warm(sol.traj, p)
-    assert np.all(np.isfinite(x)) and abs(float(jnp.exp(x[-1]) - (sol.traj.duration - 0.125))) < 1e-9
+    assert (np.all(np.isfinite(x))
+            and abs(float(jnp.exp(x[-1]) - (sol.traj.duration - 0.125))) < 1e-9)

@@ -65,7 +65,7 @@ def test_derivatives_match_finite_differences():
     t = np.linspace(0.05, 3.95, 40)
     t = t[np.all(np.abs(t[:, None] - np.linspace(0, 4, 4)[None]) > 3 * h, axis=1)]
     for d in range(3):
-        f = lambda tt: np.asarray(tr.sample(tt, d))
+        f = lambda tt, d=d: np.asarray(tr.sample(tt, d))
         fd = (f(t + h) - f(t - h)) / (2 * h)
         ana = np.asarray(tr.sample(t, d + 1))
         np.testing.assert_allclose(fd, ana, rtol=1e-6, atol=1e-6 * (1 + np.abs(ana).max()))

@@ -81,7 +81,8 @@ def random_problem(rng, *, n_others: int, mo: int = 10, rest: bool = False, N: i
     f = lambda a: jnp.asarray(a, jnp.float64)
     return NLPParams(f(p0), f(v0), f(a0), f(pf), f(np.zeros(N)), f(np.zeros(N)), jnp.asarray(rest),
                      others, f(np.full(mo, radius)), jnp.asarray(mask), f(radius),
-                     w if w is not None else weights(), lim if lim is not None else limits(), f(t_min))
+                     w if w is not None else weights(), lim if lim is not None else limits(),
+                     f(t_min))
 
 
 def stack_params(ps: list[NLPParams]) -> NLPParams:
@@ -111,12 +112,14 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     idx = jnp.broadcast_to(jnp.arange(M), (M, M))
     if 0 < max_neighbors < M - 1:
         idx = _nearest(others, orad, mask, max_neighbors)
-        take = lambda u: jnp.take_along_axis(u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)), axis=1)
+        take = lambda u: jnp.take_along_axis(
+            u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)), axis=1)
         others, orad, mask = jax.tree.map(take, others), take(orad), take(mask)
     w = w if w is not None else weights()
     lim = lim if lim is not None else limits()
     bc = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float64), (M,))
-    P = NLPParams(jnp.asarray(pos), jnp.asarray(vel), jnp.asarray(acc), jnp.asarray(goals), z, z, restv,
+    P = NLPParams(jnp.asarray(pos), jnp.asarray(vel), jnp.asarray(acc), jnp.asarray(goals), z, z,
+                  restv,
                   others, orad, mask, bc(radius),
                   jax.tree.map(bc, w), jax.tree.map(bc, lim), bc(t_min))
     return (P, idx) if return_neighbors else P
@@ -129,7 +132,8 @@ _nearest = jax.jit(lambda preds, orad, mask, K: _planner.nearest_neighbors(preds
 def antipodal(M: int, radius_m: float, rng, N: int = 3):
     """M robots on a circle (jittered in z), goals antipodal (jittered)."""
     ang = 2 * np.pi * np.arange(M) / M + rng.uniform(-0.05, 0.05, M)
-    pos = np.stack([radius_m * np.cos(ang), radius_m * np.sin(ang), 1.5 + rng.uniform(-0.3, 0.3, M)], -1)
+    pos = np.stack([radius_m * np.cos(ang), radius_m * np.sin(ang),
+                    1.5 + rng.uniform(-0.3, 0.3, M)], -1)
     goals = np.stack([-pos[:, 0], -pos[:, 1], 1.5 + rng.uniform(-0.3, 0.3, M)], -1)
     goals[:, :2] += rng.uniform(-0.3, 0.3, (M, 2))
     return pos[:, :N], goals[:, :N]
@@ -160,7 +164,8 @@ def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighb
     x0 = jax.block_until_ready(solver.initial_guess_batch(P, structure))
     sol = jax.block_until_ready(solver.solve_batch(P, x0, structure, settings))
     compile_s = time.perf_counter() - t0
-    sol, cold_ms = _timed(lambda P, x0: solver.solve_batch(P, x0, structure, settings), P, x0, repeats=repeats)
+    sol, cold_ms = _timed(lambda P, x0: solver.solve_batch(P, x0, structure, settings), P, x0,
+                          repeats=repeats)
     cold = dict(P=P, x0=x0, sol=sol)
     warm_ms, warm_conv, warm_iters, warm_cases = [], [], [], []
     ws = jax.jit(jax.vmap(lambda tr, p: solver.warm_start(tr, DT, p, structure)))
@@ -179,9 +184,11 @@ def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighb
         warm_conv.append(float(np.mean(np.asarray(sol.status) == solver.CONVERGED)))
         warm_iters.append(int(np.max(sol.iterations)))
         warm_cases.append(dict(P=P, x0=x0, sol=sol))
-    return dict(compile_s=compile_s, cold_ms=cold_ms, cold_conv=float(np.mean(np.asarray(cold["sol"].status) == 0)),
+    return dict(compile_s=compile_s, cold_ms=cold_ms,
+                cold_conv=float(np.mean(np.asarray(cold["sol"].status) == 0)),
                 cold_iters=int(np.max(cold["sol"].iterations)), warm_ms=statistics.median(warm_ms),
-                warm_ms_all=warm_ms, warm_conv=float(np.mean(warm_conv)), warm_iters_max=max(warm_iters)), cold, warm_cases
+                warm_ms_all=warm_ms, warm_conv=float(np.mean(warm_conv)),
+                warm_iters_max=max(warm_iters)), cold, warm_cases
 
 
 def _slsqp_serial(case, structure):
@@ -198,7 +205,8 @@ def _slsqp_serial(case, structure):
         conv.append(r.converged)
         viol.append(r.ineq_violation)
         gaps.append((float(sol.objective[i]) - r.objective) / max(1.0, abs(r.objective)))
-    return dict(ms=1e3 * wall, callback_ms=1e3 * cb, evaluations=evals, converged=float(np.mean(conv)),
+    return dict(ms=1e3 * wall, callback_ms=1e3 * cb, evaluations=evals,
+                converged=float(np.mean(conv)),
                 max_violation=float(max(viol)), jax_max_violation=float(np.max(sol.ineq_violation)),
                 rel_gap_max=float(max(gaps)), rel_gap_median=float(np.median(gaps)))
 
@@ -236,7 +244,8 @@ def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool =
     x0 = jax.block_until_ready(solver.initial_guess_batch(P, structure))
     jax.block_until_ready(solver.solve_batch(P, x0, structure, settings))
     comp = time.perf_counter() - t0
-    sol, ms = _timed(lambda P, x0: solver.solve_batch(P, x0, structure, settings), P, x0, repeats=2 if quick else 3)
+    sol, ms = _timed(lambda P, x0: solver.solve_batch(P, x0, structure, settings), P, x0,
+                     repeats=2 if quick else 3)
     res["batch64x10"] = dict(ms=ms, solves_per_s=640 / (ms / 1e3), compile_s=comp,
                              converged=float(np.mean(np.asarray(sol.status) == 0)))
     if echo:
@@ -248,19 +257,28 @@ def report(res: dict) -> None:
     """Print the benchmark's figures (what `jaxplan bench solver` shows)."""
     f10, f100, b = res["fleet10"], res["fleet100"], res["batch64x10"]
     sc, sw = res["slsqp10_cold"], res["slsqp10_warm"]
-    print(f"M=10  cold {f10['cold_ms']:.1f} ms (conv {f10['cold_conv']:.0%}, iters<= {f10['cold_iters']})  "
-          f"warm {f10['warm_ms']:.1f} ms median (conv {f10['warm_conv']:.0%})  compile {f10['compile_s']:.1f} s")
-    print(f"SLSQP serial cold {sc['ms']:.1f} ms ({sc['evaluations']} evals, callbacks {sc['callback_ms']:.1f} ms, "
-          f"conv {sc['converged']:.0%}) ratio {res['ratio_cold']:.1f}x; warm {sw['ms']:.1f} ms ratio {res['ratio_warm']:.1f}x")
-    print(f"objective gap (jax - slsqp)/max(1,|slsqp|): cold max {sc['rel_gap_max']:.2e} median {sc['rel_gap_median']:.2e}; "
-          f"warm max {sw['rel_gap_max']:.2e}; violation jax {sc['jax_max_violation']:.1e} slsqp {sc['max_violation']:.1e}")
-    print(f"M=100 cold {f100['cold_ms']:.1f} ms warm {f100['warm_ms']:.1f} ms (conv {f100['warm_conv']:.0%}) compile {f100['compile_s']:.1f} s")
+    print(f"M=10  cold {f10['cold_ms']:.1f} ms (conv {f10['cold_conv']:.0%}, "
+          f"iters<= {f10['cold_iters']})  "
+          f"warm {f10['warm_ms']:.1f} ms median (conv {f10['warm_conv']:.0%})  "
+          f"compile {f10['compile_s']:.1f} s")
+    print(f"SLSQP serial cold {sc['ms']:.1f} ms ({sc['evaluations']} evals, "
+          f"callbacks {sc['callback_ms']:.1f} ms, "
+          f"conv {sc['converged']:.0%}) ratio {res['ratio_cold']:.1f}x; "
+          f"warm {sw['ms']:.1f} ms ratio {res['ratio_warm']:.1f}x")
+    print(f"objective gap (jax - slsqp)/max(1,|slsqp|): cold max {sc['rel_gap_max']:.2e} "
+          f"median {sc['rel_gap_median']:.2e}; "
+          f"warm max {sw['rel_gap_max']:.2e}; violation jax {sc['jax_max_violation']:.1e} "
+          f"slsqp {sc['max_violation']:.1e}")
+    print(f"M=100 cold {f100['cold_ms']:.1f} ms warm {f100['warm_ms']:.1f} ms "
+          f"(conv {f100['warm_conv']:.0%}) compile {f100['compile_s']:.1f} s")
     if "fleet100_k" in res:
         fk = res["fleet100_k"]
         print(f"M=100, {res['neighbors_k']} nearest others per NLP: cold {fk['cold_ms']:.1f} ms "
-              f"(conv {fk['cold_conv']:.0%}) warm {fk['warm_ms']:.1f} ms (conv {fk['warm_conv']:.0%}) "
+              f"(conv {fk['cold_conv']:.0%}) warm {fk['warm_ms']:.1f} ms "
+              f"(conv {fk['warm_conv']:.0%}) "
               f"compile {fk['compile_s']:.1f} s")
-    print(f"64x10 batch {b['ms']:.1f} ms -> {b['solves_per_s']:.0f} robot-NLP solves/s (conv {b['converged']:.0%}) compile {b['compile_s']:.1f} s",
+    print(f"64x10 batch {b['ms']:.1f} ms -> {b['solves_per_s']:.0f} robot-NLP solves/s "
+          f"(conv {b['converged']:.0%}) compile {b['compile_s']:.1f} s",
           flush=True)
 
 
