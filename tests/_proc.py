@@ -4,6 +4,19 @@ import os
 import signal
 import subprocess
 import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def child_env(cache_dir, **extra) -> dict:
+    """The environment for a `python -m jaxplan` child: this checkout importable, and a
+    persistent compilation cache shared by the children (only the first compiles)."""
+    env = dict(os.environ)
+    env.update(extra)
+    env["JAX_COMPILATION_CACHE_DIR"] = str(cache_dir)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
 
 
 def kill_when(cmd, env, cwd, ready, *, timeout: float, poll: float, what: str):

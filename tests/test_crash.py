@@ -24,10 +24,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests._proc import kill_when
+from tests._proc import child_env, kill_when
 from tests.conftest import TINY_TOML
 
-ROOT = Path(__file__).resolve().parents[1]
 CONTRACT = ("config.toml", "trajectories.npz", "metrics.json")
 FIGURES = ("trajectories_3d.png", "speed_acc.png", "separation.png", "animation.gif")
 TEMP = re.compile(r"^\..+\.tmp(\.mp4)?$")  # the writers' hidden temporary names
@@ -42,10 +41,8 @@ def crash_env(tmp_path_factory):
     d = tmp_path_factory.mktemp("crash")
     cfg = d / "tiny.toml"
     cfg.write_text(TINY_TOML.replace("duration_s = 12.0", "duration_s = 1.0"))
-    env = dict(os.environ)
     # the three runs share one persistent compilation cache: only the first compiles
-    env["JAX_COMPILATION_CACHE_DIR"] = str(d / "jax_cache")
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    env = child_env(d / "jax_cache")
     return d, cfg, env
 
 

@@ -4,7 +4,6 @@ end to end with a real SIGKILL of a subprocess and a resume."""
 from __future__ import annotations
 
 import csv
-import os
 import signal
 import subprocess
 import sys
@@ -15,9 +14,7 @@ import numpy as np
 import pytest
 
 from jaxplan.config import parse_config
-from tests._proc import kill_when
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests._proc import child_env, kill_when
 
 # 2 x 2 weights x 2 seeds on three robots crossing a 2 m sphere (seeded perturbation)
 SWEEP_TOML = """
@@ -177,12 +174,10 @@ def sweep_env(tmp_path_factory):
     d = tmp_path_factory.mktemp("sweep")
     cfg = d / "tiny_sweep.toml"
     cfg.write_text(SWEEP_TOML)
-    env = dict(os.environ)
-    env["JAXPLAN_SWEEP_BATCH"] = "2"  # 8 runs -> 4 batches, so a kill lands mid-sweep
-    # the three processes share one persistent compilation cache (each still reports
-    # its one compilation of the batch program)
-    env["JAX_COMPILATION_CACHE_DIR"] = str(d / "jax_cache")
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    # 8 runs in batches of 2 -> 4 batches, so a kill lands mid-sweep; the three
+    # processes share one persistent compilation cache (each still reports its one
+    # compilation of the batch program)
+    env = child_env(d / "jax_cache", JAXPLAN_SWEEP_BATCH="2")
     return d, cfg, env
 
 
