@@ -253,11 +253,8 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     Mo = structure.others(M)
     mult_prev = ps.multipliers
     if Mo < M:
-        idx = nearest_neighbors(preds, other_radius, other_mask, Mo)
-        take = lambda u: jnp.take_along_axis(u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)),
-                                             axis=1)
-        preds, other_radius, other_mask = (jax.tree.map(take, preds), take(other_radius),
-                                           take(other_mask))
+        preds, other_radius, other_mask, idx = select_neighbors(preds, other_radius,
+                                                                other_mask, Mo)
         mult_prev = mult_prev._replace(
             collision=remap_slots(mult_prev.collision, ps.neighbors, idx))
     else:
@@ -389,6 +386,15 @@ def remap_slots(lam, old_idx, new_idx):
 
 NEIGHBOR_HORIZON_S = (1.0, 10.0)  # s: the window nearest_neighbors looks over (clipped)
 NEIGHBOR_SAMPLES = 16
+
+
+def select_neighbors(preds: Trajectory, other_radius, mask, K: int):
+    """Keep each robot's K nearest others (:func:`nearest_neighbors`): the predictions
+    (M, K), radii (M, K) and mask (M, K) of the kept slots, and their indices (M, K)."""
+    idx = nearest_neighbors(preds, other_radius, mask, K)
+    take = lambda u: jnp.take_along_axis(u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)),
+                                         axis=1)
+    return jax.tree.map(take, preds), take(other_radius), take(mask), idx
 
 
 def nearest_neighbors(preds: Trajectory, other_radius, mask, K: int):

@@ -111,10 +111,7 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     mask = ~jnp.eye(M, dtype=bool)
     idx = jnp.broadcast_to(jnp.arange(M), (M, M))
     if 0 < max_neighbors < M - 1:
-        idx = _nearest(others, orad, mask, max_neighbors)
-        take = lambda u: jnp.take_along_axis(
-            u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)), axis=1)
-        others, orad, mask = jax.tree.map(take, others), take(orad), take(mask)
+        others, orad, mask, idx = _select(others, orad, mask, max_neighbors)
     w = w if w is not None else weights()
     lim = lim if lim is not None else limits()
     bc = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float64), (M,))
@@ -125,8 +122,7 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     return (P, idx) if return_neighbors else P
 
 
-_nearest = jax.jit(lambda preds, orad, mask, K: _planner.nearest_neighbors(preds, orad, mask, K),
-                   static_argnums=3)
+_select = jax.jit(_planner.select_neighbors, static_argnums=3)
 
 
 def antipodal(M: int, radius_m: float, rng, N: int = 3):
