@@ -4,7 +4,8 @@
     description = ""                  # free text
     seed = 0                          # 0 <= seed < 2**63; seeds every random choice
     [planner]  replan_hz, q_dynm, q_obs, q_lim, k_t, k_p, collision, degree, segments,
-               end_state, max_iters, tol, n_samples, safety_margin_m, max_neighbors
+               end_state, max_iters, tol, n_samples, safety_margin_m, max_neighbors,
+               coast_samples
     [limits]   v_max, a_max, j_max    (optional overrides of the per-vehicle defaults)
     [sim]      backend, duration_s, physics_hz, control_hz, goal_tolerance_m,
                goal_speed_tolerance_mps
@@ -88,6 +89,8 @@ DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tol
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
 DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
 DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
+DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
+MAX_COAST_SAMPLES = 256
 
 DEFAULT_BACKEND = "ideal"
 DEFAULT_DURATION_S = 30.0
@@ -128,6 +131,10 @@ class PlannerConfig:
     the others' replanning).  max_neighbors (>= 0): 0 puts every other robot in each
     robot's NLP; K >= 1 only the K that come nearest to its own prediction (the NLP's
     cost then stays flat as the fleet grows; jaxplan.planner.nearest_neighbors).
+    coast_samples (>= 0): a free-end plan must also keep clear of the others on its coast
+    after T (p(T) + v(T) t, for t up to the time a stop from v_max takes) at this many
+    sample times (hard constraints; only in the "constraint" modes; 0 = off, the paper's
+    NLP: a free-end plan may then arrive at speed with a robot just beyond its goal).
     """
 
     replan_hz: float = DEFAULT_REPLAN_HZ
@@ -145,6 +152,7 @@ class PlannerConfig:
     n_samples: int = DEFAULT_N_SAMPLES
     safety_margin_m: float = DEFAULT_SAFETY_MARGIN_M
     max_neighbors: int = DEFAULT_MAX_NEIGHBORS
+    coast_samples: int = DEFAULT_COAST_SAMPLES
 
 
 @dataclass(frozen=True)
@@ -401,6 +409,8 @@ def _parse_planner(c: _Ctx, raw: Any) -> PlannerConfig:
         safety_margin_m=c.number(g("safety_margin_m"), "planner.safety_margin_m", ge=0, le=10),
         max_neighbors=c.integer(g("max_neighbors"), "planner.max_neighbors", ge=0,
                                 le=MAX_ROBOTS),
+        coast_samples=c.integer(g("coast_samples"), "planner.coast_samples", ge=0,
+                                le=MAX_COAST_SAMPLES),
     )
 
 

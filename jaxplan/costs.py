@@ -112,6 +112,12 @@ class NLPStructure:
         n_quadrature: Gauss-Legendre nodes per segment for the soft-limit integral.
         hard_limits: add the constraints |x^(k)(t_i)| <= tau_k.
         n_limit_samples: uniform sample times in (0, T] for the hard limits.
+        n_coast_samples: collision constraints on a FREE-end plan's coast after T (what
+            it flies if nothing replaced it: p(T) + v(T) t), at t = t_c k / n for
+            k = 1..n, with t_c = :func:`coast_time` (long enough to stop from v_max).
+            Only in the modes with collision constraints; no barrier there; inactive on
+            rest lanes (their coast is a hold, checked by the last samples).  0 = off
+            (the paper's NLP).
     """
 
     n_dim: int = 3
@@ -122,6 +128,7 @@ class NLPStructure:
     n_quadrature: int = 8
     hard_limits: bool = False
     n_limit_samples: int = 16
+    n_coast_samples: int = 0
 
     def __post_init__(self):
         if self.collision not in COLLISION_MODES:
@@ -132,6 +139,8 @@ class NLPStructure:
             raise ValueError("segments and n_dim must be >= 1")
         if self.n_collision_samples % 4 or self.n_collision_samples < 4:
             raise ValueError("n_collision_samples must be a positive multiple of 4")
+        if self.n_coast_samples < 0:
+            raise ValueError("n_coast_samples must be >= 0")
 
     @property
     def barrier(self) -> bool:
@@ -144,6 +153,16 @@ class NLPStructure:
     @property
     def collision_constraints(self) -> bool:
         return self.collision in ("constraint", "barrier+constraint")
+
+    @property
+    def n_coast(self) -> int:
+        """Coast samples in use (0 unless the mode has collision constraints)."""
+        return self.n_coast_samples if self.collision_constraints else 0
+
+    @property
+    def n_col(self) -> int:
+        """Rows of the collision constraints: the samples in [0, T], then the coast."""
+        return self.n_collision_samples + self.n_coast
 
     @property
     def nz(self) -> int:
@@ -186,7 +205,7 @@ class NLPParams(NamedTuple):
 class Multipliers(NamedTuple):
     """Augmented-Lagrangian multipliers (>= 0) of the inequality constraints."""
 
-    collision: jax.Array  # (Kc, Mo)
+    collision: jax.Array  # (Kc + n_coast, Mo)
     limits: jax.Array  # (Kh, 3)
 
 
@@ -223,6 +242,7 @@ class _Kind(NamedTuple):
     col: np.ndarray  # (4, Kc, 6 + nz): rows [B_r | C_r], r = 0..3
     quad: np.ndarray  # (4, Kq, 6 + nz)
     lim: np.ndarray  # (4, Kh, 6 + nz)
+    end: np.ndarray  # (4, 1, 6 + nz) at s = 1
     fit_pinv: np.ndarray  # (nz, Kf)  z = pinv (target - B0 e)
     fit_B: np.ndarray  # (Kf, 6)
 
@@ -315,7 +335,7 @@ def basis(structure: NLPStructure) -> Basis:
         Bf = rows(0, fit_s) @ P
         Cf = rows(0, fit_s) @ Z
         return _Kind(P, Z, M, q, sample_mats(col_s), sample_mats(quad_s), sample_mats(lim_s),
-                     np.linalg.pinv(Cf, rcond=1e-10), Bf)
+                     sample_mats(np.ones(1)), np.linalg.pinv(Cf, rcond=1e-10), Bf)
 
     return Basis(kind(False), kind(True), col_s, col_w, quad_s, quad_w, lim_s, fit_s)
 
@@ -397,6 +417,51 @@ def _features(x, params, structure, mats, derivs):
     return jnp.concatenate(out, axis=-1)
 
 
+def coast_time(limits: Limits):
+    """Length t_c (s) of the coast checked after a free end: v_max / (2 a_max) +
+    a_max / (2 j_max), so that the coast at any speed v <= v_max, v t_c, is at least the
+    distance v^2 / (2 a_max) + v a_max / (2 j_max) of a jerk-limited stop from v (from
+    zero acceleration; exact for v >= a_max^2 / j_max)."""
+    return limits.v_max / (2.0 * limits.a_max) + limits.a_max / (2.0 * limits.j_max)
+
+
+def _col_samples(params, structure):
+    """Collision rows: (s, off, w, on) (n_col,) each.  Row k is at time T s_k + off_k;
+    w_k its barrier quadrature weight; on_k whether its constraint is active."""
+    b = basis(structure)
+    s = jnp.asarray(b.col_s)
+    Kc = len(b.col_s)
+    off = jnp.zeros(Kc)
+    w = jnp.asarray(b.col_w)
+    on = jnp.ones(Kc, bool)
+    n = structure.n_coast
+    if n:
+        sig = jnp.arange(1, n + 1) / n
+        s = jnp.concatenate([s, jnp.ones(n)])
+        off = jnp.concatenate([off, sig * coast_time(params.limits)])
+        w = jnp.concatenate([w, jnp.zeros(n)])
+        on = jnp.concatenate([on, jnp.broadcast_to(~jnp.asarray(params.rest, bool), (n,))])
+    return s, off, w, on
+
+
+def _col_features(x, params, structure, kc, derivs):
+    """:func:`_features` at the collision samples, then (coast) the positions
+    p(T) + v(T) t_c k / n (only with derivs == (0,), i.e. without the "paper" term)."""
+    y = _features(x, params, structure, kc.col, derivs)
+    n = structure.n_coast
+    if not n:
+        return y
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    h = T / structure.segments
+    ez = jnp.concatenate([boundary_vector(params, h), z.T], axis=0)
+    p1 = kc.end[0] @ ez  # (1, N)
+    v1 = (kc.end[1] @ ez) / h
+    t = jnp.arange(1, n + 1) / n * coast_time(params.limits)
+    yk = jnp.concatenate([p1 + t[:, None] * v1, jnp.broadcast_to(T, (n, 1))], axis=-1)
+    return jnp.concatenate([y, yk], axis=0)
+
+
 def _others_derivs(others: Trajectory, mask, t, R: int):
     """Derivatives 0..R of the others at times t (K,) -> list of (K, Mo, N).
 
@@ -453,8 +518,9 @@ def al_term(g, lam, mu):
 
 
 # ---------------------------------------------------------------------- local terms
-def _collision_local(y, jet, s, w, lam, T_ref, params, structure, mu, use_jet):
-    """Collision terms at one sample: y = (p (N), [v (N)], T)."""
+def _collision_local(y, jet, s, w, lam, T_ref, params, structure, mu, use_jet, on=True):
+    """Collision terms at one sample: y = (p (N), [v (N)], T); ``on``: its constraint
+    is active."""
     N = structure.n_dim
     p = y[:N]
     T = y[-1]
@@ -478,7 +544,7 @@ def _collision_local(y, jet, s, w, lam, T_ref, params, structure, mu, use_jet):
             val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, c, 0.0))
     if structure.collision_constraints and lam is not None:
         g = d2 - rho * rho
-        val = val + jnp.sum(jnp.where(mask, al_term(g, lam, mu), 0.0))
+        val = val + jnp.sum(jnp.where(mask & on, al_term(g, lam, mu), 0.0))
     return val
 
 
@@ -537,26 +603,28 @@ def _terms(x, params, structure, kc, mult: Multipliers | None, mu, with_g: bool 
     yq = _features(x, params, structure, kc.quad, (1, 2, 3))
     val = val + jnp.sum(jax.vmap(lambda y, w: _limits_local(y, w, params, structure))(
         yq, jnp.asarray(b.quad_w)))
-    gc = jnp.ones((len(b.col_s), Mo), x.dtype)
+    gc = jnp.ones((structure.n_col, Mo), x.dtype)
     if _has_collision(structure):
         N = structure.n_dim
-        yc = _features(x, params, structure, kc.col, _col_derivs(structure))
+        yc = _col_features(x, params, structure, kc, _col_derivs(structure))
         T = yc[0, -1]
-        s = jnp.asarray(b.col_s)
-        jet = _others_derivs(params.others, params.other_mask, T * s, 1 if structure.paper else 0)
+        s, off, w, on = _col_samples(params, structure)
+        jet = _others_derivs(params.others, params.other_mask, T * s + off,
+                             1 if structure.paper else 0)
         o1 = jet[1] if structure.paper else jnp.zeros_like(jet[0])
         lam = mult.collision if mult is not None else None
 
-        def one(y, a0, a1, sk, wk, lk):
+        def one(y, a0, a1, sk, wk, lk, ok):
             return _collision_local(y, (a0, a1, 0.0, 0.0), sk, wk, lk, 0.0, params, structure, mu,
-                                    False)
+                                    False, ok)
 
-        vals = jax.vmap(one)(yc, jet[0], o1, s, jnp.asarray(b.col_w), lam)
+        vals = jax.vmap(one)(yc, jet[0], o1, s, w, lam, on)
         val = val + jnp.sum(vals)
         if with_g and structure.collision_constraints:
             dx = yc[:, None, :N] - jet[0]
             rho = params.radius + params.other_radius
-            gc = jnp.where(params.other_mask, jnp.sum(dx * dx, axis=-1) - rho**2, 1.0)
+            gc = jnp.where(params.other_mask & on[:, None],
+                           jnp.sum(dx * dx, axis=-1) - rho**2, 1.0)
     gh = jnp.ones((len(b.lim_s), 3), x.dtype)
     if structure.hard_limits and (mult is not None or with_g):
         yh = _features(x, params, structure, kc.lim, (1, 2, 3))
@@ -589,15 +657,16 @@ def constraints(x, params: NLPParams, structure: NLPStructure):
 def _constraints(x, params, structure, kc):
     b = basis(structure)
     Mo = params.other_mask.shape[-1]
-    Kc, Kh = len(b.col_s), len(b.lim_s)
+    Kc, Kh = structure.n_col, len(b.lim_s)
     if structure.collision_constraints:
-        yc = _features(x, params, structure, kc.col, (0,))
+        yc = _col_features(x, params, structure, kc, (0,))
         T = yc[0, -1]
-        o = _others_derivs(params.others, params.other_mask, T * jnp.asarray(b.col_s), 0)[0]
+        s, off, _, on = _col_samples(params, structure)
+        o = _others_derivs(params.others, params.other_mask, T * s + off, 0)[0]
         dx = yc[:, None, : structure.n_dim] - o
         rho = params.radius + params.other_radius
         gc = jnp.sum(dx * dx, axis=-1) - rho**2
-        gc = jnp.where(params.other_mask, gc, 1.0)
+        gc = jnp.where(params.other_mask & on[:, None], gc, 1.0)
     else:
         gc = jnp.ones((Kc, Mo), x.dtype)
     if structure.hard_limits:
@@ -679,8 +748,9 @@ def _radial(X, u, w, T, a, b):
     return val, g, H
 
 
-def _collision_radial(y, o0, o1, o2, s, w, lam, params, structure, mu):
-    """Structured derivatives of the barrier / constraint collision terms at one sample."""
+def _collision_radial(y, o0, o1, o2, s, w, lam, params, structure, mu, on=True):
+    """Structured derivatives of the barrier / constraint collision terms at one sample
+    (``on``: its constraint is active)."""
     N = structure.n_dim
     p, T = y[:N], y[-1]
     X = p - o0
@@ -698,7 +768,7 @@ def _collision_radial(y, o0, o1, o2, s, w, lam, params, structure, mu):
     else:
         a = zero
     if structure.collision_constraints:
-        bf = lambda rr: jnp.where(mask, al_term(rr - rho * rho, lam, mu), 0.0)
+        bf = lambda rr: jnp.where(mask & on, al_term(rr - rho * rho, lam, mu), 0.0)
         bb = _d012(bf, r)
     else:
         bb = zero
@@ -749,12 +819,12 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
     total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
 
     if _has_collision(structure):
-        featc = lambda xx: _features(xx, params, structure, kc.col, _col_derivs(structure))
+        featc = lambda xx: _col_features(xx, params, structure, kc, _col_derivs(structure))
         yc = featc(x)
         T = jax.lax.stop_gradient(yc[0, -1])
-        s = jnp.asarray(b.col_s)
+        s, off, w, on = _col_samples(params, structure)
         R = 3 if structure.paper else 2
-        jet = _others_derivs(params.others, params.other_mask, T * s, R)
+        jet = _others_derivs(params.others, params.other_mask, T * s + off, R)
         jet = jet + [jnp.zeros_like(jet[0])] * (4 - len(jet))
         lam = (mult.collision if structure.collision_constraints
                else jnp.zeros(jet[0].shape[:2], x.dtype))
@@ -765,12 +835,12 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
                     y,
                 )
 
-            vc, gc, Hc = jax.vmap(loc)(yc, jet, s, jnp.asarray(b.col_w), lam)
+            vc, gc, Hc = jax.vmap(loc)(yc, jet, s, w, lam)
         else:
             vc, gc, Hc = jax.vmap(
-                lambda y, a0, a1, a2, sk, wk, lk: _collision_radial(
-                    y, a0, a1, a2, sk, wk, lk, params, structure, mu)
-            )(yc, jet[0], jet[1], jet[2], s, jnp.asarray(b.col_w), lam)
+                lambda y, a0, a1, a2, sk, wk, lk, ok: _collision_radial(
+                    y, a0, a1, a2, sk, wk, lk, params, structure, mu, ok)
+            )(yc, jet[0], jet[1], jet[2], s, w, lam, on)
         v, g, H = _assemble(featc, x, vc, gc, Hc)
         total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
 

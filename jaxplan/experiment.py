@@ -65,6 +65,7 @@ def structures(config: Config) -> RolloutStructure:
     nlp = NLPStructure(
         n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
         collision=pc.collision, n_collision_samples=_mult4(pc.n_samples),
+        n_coast_samples=pc.coast_samples,
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults

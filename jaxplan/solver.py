@@ -119,7 +119,7 @@ def _max_violation(g: Multipliers):
 def zero_multipliers(params: NLPParams, structure: NLPStructure) -> Multipliers:
     b = costs.basis(structure)
     Mo = params.other_mask.shape[-1]
-    return Multipliers(jnp.zeros((len(b.col_s), Mo)), jnp.zeros((len(b.lim_s), 3)))
+    return Multipliers(jnp.zeros((structure.n_col, Mo)), jnp.zeros((len(b.lim_s), 3)))
 
 
 def _sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:

@@ -24,6 +24,8 @@ CASES = [
     (NLPStructure(collision="barrier+constraint", segments=3, hard_limits=True), True),
     (NLPStructure(collision="paper", segments=2), False),
     (NLPStructure(collision="constraint", degree=7), True),
+    (NLPStructure(collision="barrier+constraint", segments=2, n_coast_samples=6), False),
+    (NLPStructure(collision="constraint", segments=2, n_coast_samples=6), True),
 ]
 
 
@@ -33,7 +35,7 @@ def test_structured_derivatives_match_autodiff(st, rest):
     p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
     kc = costs.kind_constants(p.rest, st)
     b = costs.basis(st)
-    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (len(b.col_s), 10))),
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))),
                        jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
     x = _x(rng, st, 5.0, 0.05)
     f = lambda xx: costs.merit(xx, p, st, kc, mult, 30.0)
@@ -110,3 +112,36 @@ def test_others_hold_or_coast_after_their_end():
     np.testing.assert_allclose(out[0][1, :, 0], [2.0, 3.0])  # hold vs coast
     np.testing.assert_allclose(out[1][1, :, 0], [0.0, 1.0])
     np.testing.assert_allclose(out[0][0, :, 0], [1.0, 1.0])
+
+
+@pytest.mark.parametrize("rest", [False, True])
+def test_coast_constraints_are_the_flown_coast(rest):
+    """The coast rows of a free-end NLP are d^2 - rho^2 of the plan's own coast after T
+    (Trajectory.evaluate, coast=True) against the others at T + t_c k / n; on a rest lane
+    they are inactive (+1).  The rows before are unchanged by the coast."""
+    n = 5
+    st = NLPStructure(collision="barrier+constraint", segments=2, n_coast_samples=n)
+    st0 = NLPStructure(collision="barrier+constraint", segments=2)
+    rng = np.random.default_rng(7)
+    p = random_problem(rng, n_others=4, rest=rest)
+    x = _x(rng, st, 3.0, 0.3)
+    g = costs.constraints(x, p, st).collision
+    g0 = costs.constraints(x, p, st0).collision
+    assert g.shape == (st0.n_collision_samples + n, 10)
+    np.testing.assert_array_equal(g[: st0.n_collision_samples], g0)
+    if rest:
+        np.testing.assert_array_equal(g[-n:], 1.0)
+        return
+    traj = costs.to_trajectory(x, p, st)
+    tc = float(costs.coast_time(p.limits))
+    lim = p.limits
+    assert tc == pytest.approx(lim.v_max / (2 * lim.a_max) + lim.a_max / (2 * lim.j_max))
+    t = 3.0 + tc * np.arange(1, n + 1) / n
+    me = np.asarray(traj.evaluate(t[:, None])).reshape(n, -1)  # p(T) + v(T) (t - T)
+    others = np.asarray(p.others.evaluate(t[:, None])).reshape(n, 10, -1)  # (n, Mo, N)
+    rho = float(p.radius) + np.asarray(p.other_radius)
+    ref = np.sum((me[:, None] - others) ** 2, axis=-1) - rho**2
+    ref = np.where(np.asarray(p.other_mask), ref, 1.0)
+    np.testing.assert_allclose(g[-n:], ref, rtol=1e-10, atol=1e-10)
+    # and the coast is real: the rows differ from the end sample's
+    assert not np.allclose(g[-1], g[st0.n_collision_samples - 1])

@@ -90,7 +90,8 @@ frozen_robot = 0
 frozen_at_s = 0.0
 frozen_mode = "silent"
 [planner]
-end_state = "rest"
+end_state = "{end}"
+coast_samples = {coast}
 [[robots]]
 vehicle = "firefly"
 start = [0.0, 0.0, 1.5]
@@ -105,8 +106,9 @@ goal = [{gx}, 0.0, 1.5]
 @pytest.fixture(scope="module")
 def beside_frozen():
     """Robot 1 flies to a goal gx m from robot 0, which never moves and never talks."""
-    def go(gx):
-        return run(parse_config(tomllib.loads(FROZEN.format(gx=gx)), source="frozen.toml"))
+    def go(gx, end="rest", coast=8):
+        doc = tomllib.loads(FROZEN.format(gx=gx, end=end, coast=coast))
+        return run(parse_config(doc, source="frozen.toml"))
     return go
 
 
@@ -132,3 +134,14 @@ def test_goal_inside_a_frozen_robot_waits_beside_it(beside_frozen):
     d = np.linalg.norm(end - np.array([0.0, 0.0, 1.5]))
     assert 0.73 - 1e-3 <= d <= 0.73 + GOAL_CLEARANCE + 0.02
     assert np.linalg.norm(end - np.array([0.5, 0.0, 1.5])) < 0.3
+
+
+def test_free_end_stops_short_of_a_frozen_robot_beyond_its_goal(beside_frozen):
+    # a free-end plan may arrive at speed; with robot 0 just beyond the goal the coast
+    # constraints (planner.coast_samples, default 8) make it arrive slowly enough to
+    # stop.  Without them (coast_samples = 0) this run collided: min d / rho 0.0067.
+    res = beside_frozen(0.95, end="free")
+    m = res.metrics
+    assert m["collisions"] == 0, m["min_separation_ratio"]
+    assert m["min_separation_ratio"] > 1.0
+    assert m["per_robot"][1]["reached"], m["per_robot"][1]
