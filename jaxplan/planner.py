@@ -25,14 +25,17 @@ waits there; it takes the goal again once it is free.  Without this, such a robo
 solves are infeasible every replan and the plans it flies wander off (measured: 14.7 m
 from its goal after 28 s beside a frozen robot).
 
-Fallbacks (counted in :class:`ReplanInfo`): a robot whose solve is not accepted but is
-finite and meets its equalities flies it anyway (BEST_EFFORT: typically INFEASIBLE
-because it starts inside another robot's planning radius, or another's prediction
-crosses its start; the solve minimized the violation against the newest predictions,
-which an older plan or a braking plan does not know).  Otherwise (a non-finite solve)
-it keeps its previous plan shifted to now, or, when that plan has run out, a braking
-plan that brings it to rest.  A solve is ACCEPTED when its plan is finite, its equality
-residual is <= 1e-6 and its status is CONVERGED, or MAX_ITERS with every inequality
+Fallbacks (counted in :class:`ReplanInfo`): a robot whose solve is not accepted flies
+whichever of three plans comes least deep into the others' planning distances over the
+next CHECK_HORIZON_S (:func:`plan_violation`, CHECK_SAMPLES instants, against the
+predictions its NLP used), ties going in this order: the solve itself if it is finite
+and meets its equalities (BEST_EFFORT: typically INFEASIBLE because it starts inside
+another robot's planning radius, or another's prediction crosses its start; the solve
+minimized the violation against the newest predictions), its previous plan shifted to
+now while that has not run out (KEPT_PREVIOUS), a braking plan that brings it to rest
+(BRAKING).  Before this comparison any finite best-effort solve was flown, even one
+through a robot.  A solve is ACCEPTED when its plan is finite, its equality residual
+is <= 1e-6 and its status is CONVERGED, or MAX_ITERS with every inequality
 satisfied to ``accept_violation``.  No NaN leaves this step.
 
 Everything here is pure and jit-able; shapes are fixed by (M, N, structure).
@@ -60,6 +63,8 @@ STALE_AFTER_S = 0.5  # s: an older view is a robot holding its last known positi
 # occupies it (see replan: goals another robot occupies)
 GOAL_CLEARANCE = 0.05
 GOAL_PROJECTIONS = 4  # fixed passes of the goal projection (several occupants)
+CHECK_HORIZON_S = 1.5  # s: fallback plans are compared over this long (plan_violation)
+CHECK_SAMPLES = 32  # instants in (0, CHECK_HORIZON_S] (47 ms apart: 9 cm at 2 m/s)
 
 # fallback kinds in ReplanInfo.fallback
 ACCEPTED, KEPT_PREVIOUS, BRAKING, BEST_EFFORT = 0, 1, 2, 3
@@ -295,11 +300,22 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
         jnp.isfinite(prev.coeffs), axis=(-1, -2, -3))
     brake = braking_plan(p, v, a, limits_i.a_max, structure)
     usable = finite & (sol.eq_violation <= 1e-6) & (sol.status != slv.NON_FINITE)
-    fallback = jnp.where(accepted, ACCEPTED, jnp.where(
-        usable, BEST_EFFORT, jnp.where(prev_ok, KEPT_PREVIOUS, BRAKING)))
     sel = lambda c, x, y: jax.tree.map(
         lambda u, w: jnp.where(c.reshape(c.shape + (1,) * (u.ndim - c.ndim)), u, w), x, y)
-    plan = sel(accepted | usable, sol.traj, sel(prev_ok, prev, brake))
+    # not accepted: the least violating of best effort, previous, braking (in that order
+    # on ties); computed only when some robot needs it
+    def choose():
+        viol = lambda tr: plan_violation(tr, params.others, params.radius, other_radius,
+                                         other_mask)
+        safe_sol = sel(usable, sol.traj, brake)
+        v_sol = jnp.where(usable, viol(safe_sol), jnp.inf)
+        v_prev = jnp.where(prev_ok, viol(sel(prev_ok, prev, brake)), jnp.inf)
+        return pick_fallback(v_sol, v_prev, viol(brake))
+
+    fallback = jnp.where(accepted, ACCEPTED, jax.lax.cond(
+        jnp.any(~accepted & fp.robot_mask), choose, lambda: jnp.full((M,), BRAKING)))
+    plan = sel(accepted | (fallback == BEST_EFFORT), sol.traj,
+               sel(fallback == KEPT_PREVIOUS, prev, brake))
     # padding robots hold where they are
     hold = Trajectory.hold(p, nlp.degree, nlp.segments)
     plan = sel(fp.robot_mask, plan, hold)
@@ -312,6 +328,29 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
                       sol.ineq_violation, fallback.astype(jnp.int32),
                       goal_moved & fp.robot_mask)
     return new_ps, info
+
+
+def pick_fallback(v_sol, v_prev, v_brake, tol: float = 1e-6):
+    """The fallback of a robot whose solve was not accepted, from the violations
+    (:func:`plan_violation`, m; inf: not available) of its best-effort solve, its
+    previous plan and its braking plan: the least, ties (within ``tol``) in that order."""
+    use_sol = v_sol <= jnp.minimum(v_prev, v_brake) + tol
+    use_prev = ~use_sol & (v_prev <= v_brake + tol)
+    return jnp.where(use_sol, BEST_EFFORT, jnp.where(use_prev, KEPT_PREVIOUS, BRAKING))
+
+
+def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, mask):
+    """How deep each plan comes into the others' planning distances over the next
+    CHECK_HORIZON_S: max over CHECK_SAMPLES instants and others of rho_ij - d_ij (m),
+    0 when clear.  plans: (M,) trajectories starting now (holding or coasting after
+    their end); others: (M, Mo) predictions; radius (M,); other_radius, mask (M, Mo)."""
+    t = jnp.arange(1, CHECK_SAMPLES + 1) * (CHECK_HORIZON_S / CHECK_SAMPLES)
+    me = plans.evaluate(t[:, None])  # (K, M, N)
+    ot = others.evaluate(t[:, None, None])  # (K, M, Mo, N)
+    d = jnp.sqrt(jnp.sum((me[:, :, None] - ot) ** 2, axis=-1))
+    rho = radius[:, None] + other_radius
+    pen = jnp.where(mask[None] & jnp.isfinite(d), rho[None] - d, 0.0)
+    return jnp.maximum(jnp.max(pen, axis=(0, 2)), 0.0)
 
 
 def free_goals(goal_p, p, occupant, radius, inflate, mask):

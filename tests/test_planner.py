@@ -166,3 +166,36 @@ def test_structure_of_run_does_not_depend_on_duration(tiny_config):
     s2 = ex.structures(cfg2)
     assert s1.steps != s2.steps
     assert ex.step_runner(s1) is ex.step_runner(s2)  # one compilation for both
+
+
+def test_pick_fallback_takes_the_least_violation():
+    from jaxplan.planner import pick_fallback
+    inf = np.inf
+    v_sol = jnp.asarray([0.0, 0.3, 0.3, inf, inf, 0.2, 0.1])
+    v_prev = jnp.asarray([0.0, 0.1, 0.5, 0.2, inf, 0.2, 0.1 + 5e-7])
+    v_brake = jnp.asarray([0.0, 0.2, 0.1, 0.2, 0.4, 0.2, 0.0])
+    got = np.asarray(pick_fallback(v_sol, v_prev, v_brake))
+    np.testing.assert_array_equal(
+        got, [BEST_EFFORT, KEPT_PREVIOUS, BRAKING, KEPT_PREVIOUS, BRAKING, BEST_EFFORT, BRAKING])
+
+
+def test_plan_violation_matches_a_direct_computation():
+    from jaxplan.planner import CHECK_HORIZON_S, CHECK_SAMPLES, plan_violation
+    # robot 0 flies along x at 1 m/s (a linear polynomial, coasting); robot 1 hovers.
+    c = np.zeros((2, 1, 3, 6))
+    c[0, 0, 0, 1] = 0.5  # x = 0.5 s over T = 0.5 s, then coasts at 1 m/s
+    plans = Trajectory.from_normalized(c, jnp.asarray([0.5, 0.5]),
+                                       coast=jnp.asarray([True, False]))
+    # each robot sees the other held at a point: robot 0 sees (1.2, 0.1, 0), robot 1
+    # sees (-5, 0, 0), far away
+    pts = np.array([[[0.0, 0, 0], [1.2, 0.1, 0]], [[-5.0, 0, 0], [0.0, 0, 0]]])
+    others = Trajectory.hold(jnp.asarray(pts), 5, 1)
+    mask = jnp.asarray([[False, True], [True, False]])
+    rad = jnp.asarray([0.25, 0.25])
+    orad = jnp.full((2, 2), 0.3)
+    got = np.asarray(plan_violation(plans, others, rad, orad, mask))
+    t = np.arange(1, CHECK_SAMPLES + 1) * CHECK_HORIZON_S / CHECK_SAMPLES
+    d = np.hypot(t - 1.2, 0.1)
+    np.testing.assert_allclose(got[0], max(0.0, np.max(0.55 - d)), rtol=1e-12)
+    assert got[0] > 0.4
+    assert got[1] == 0.0
