@@ -9,8 +9,13 @@ From its view each robot predicts the others in closed form (:mod:`jaxplan.predi
 advanced by the age of the message it came from.  An old message costs a larger radius
 (at most MAX_INFLATION): a view up to STALE_AFTER_S old is a prediction advanced from
 the sent state, which can be off by what the sender's acceleration could change since,
-a_max age^2 / 2; an older view is a robot holding its last known position, which can be
-off by how far it could have flown since, v_max age;
+a_max age^2 / 2; an older view is a robot holding still, which can be off by how far it
+could have flown since, v_max age.  It is held at the middle of the stretch between its
+last message and where that message predicted it one period later (it fell silent
+somewhere there), and it is never taken to be known better than that stretch allows:
+half its chord plus a_max dt^2 / 8 (``floor``; measured before: a robot that froze at
+1.46 m/s stood 0.195 m from its last message, and a robot planning beside it at the
+planning distance collided, d / rho 0.963).  Each robot then
 builds its NLP (:mod:`jaxplan.costs`) and solves it; all robots' NLPs are solved in one
 vmapped call (:mod:`jaxplan.solver`).  Warm start: the robot's previous plan shifted by
 the replan period; the first plan starts from its own prediction.
@@ -19,9 +24,11 @@ Goals another robot occupies: uncertainty never keeps a robot off its own goal. 
 robot i's goal lies inside the inflated planning distance of where j's prediction ends
 (a robot parked, frozen or silent near it), the inflation of j for i shrinks so that the
 goal keeps GOAL_CLEARANCE outside it; the uninflated distance (both radii, which include
-the safety margin) is never given up.  Where the goal lies inside even that, the robot
-plans to the nearest point GOAL_CLEARANCE outside it (``ReplanInfo.goal_moved``) and
-waits there; it takes the goal again once it is free.  Without this, such a robot's
+the safety margin) and the floor of a held robot are never given up.  Where the goal lies
+inside even that, the robot plans to the nearest point GOAL_CLEARANCE outside it
+(``ReplanInfo.goal_moved``) with a rest end and waits there (with a free end it flew
+through that point at speed and back, replan after replan); it takes the goal again
+once it is free.  Without this, such a robot's
 solves are infeasible every replan and the plans it flies wander off (measured: 14.7 m
 from its goal after 28 s beside a frozen robot).
 
@@ -241,18 +248,31 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     # an age from the future counts as 0, an unknown (NaN) age as infinitely old
     age = jnp.where(jnp.isnan(views.age), jnp.inf, jnp.maximum(views.age, 0.0))
     fresh = age <= STALE_AFTER_S
-    preds = predict_views(views, fp.prediction_weight).shift(jnp.where(fresh, age, 0.0))
-    held = Trajectory.hold(views.p, preds.degree, preds.num_segments)
+    preds0 = predict_views(views, fp.prediction_weight)
+    preds = preds0.shift(jnp.where(fresh, age, 0.0))
+    # a silent robot stopped somewhere between its last message and the next one due
+    # (one period later, along its prediction): held at the middle of that stretch,
+    # which it is within floor of (half the chord, plus a_max dt^2 / 8 for the bend)
+    nxt = preds0.evaluate(fp.dt)
+    held_p = 0.5 * (views.p + nxt)
+    held = Trajectory.hold(held_p, preds.degree, preds.num_segments)
     preds = jax.tree.map(lambda u, w: jnp.where(
         fresh.reshape(fresh.shape + (1,) * (u.ndim - 2)), u, w), preds, held)
+    floor = jnp.where(fresh, 0.0, 0.5 * jnp.linalg.norm(nxt - views.p, axis=-1)
+                      + fp.limits.a_max[None, :] * fp.dt**2 / 8)
+    floor = jnp.where(jnp.isfinite(floor), floor, 0.0)
     # old information: inflate the other's radius by how far it could be from where the
     # view puts it (unmodelled acceleration for a prediction, any motion for a hold)
     grow = jnp.where(fresh, 0.5 * fp.limits.a_max * age**2, fp.limits.v_max * age)
-    inflate = jnp.minimum(grow, MAX_INFLATION)
+    inflate = jnp.maximum(jnp.minimum(grow, MAX_INFLATION), floor)
     eye = jnp.eye(M, dtype=bool)
     other_mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
     goal_p, inflate, goal_moved = free_goals(goal_p, p, preds.end_state()[0], fp.radius,
-                                             inflate, other_mask)
+                                             inflate, other_mask, floor)
+    # a robot whose goal moved waits there: a rest end, not a free end it would fly
+    # through at speed (and back, every replan)
+    rest = rest | goal_moved
+    goal_v = jnp.where(goal_moved[:, None], 0.0, goal_v)
     limits_i = Limits(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
     other_radius = fp.radius[None, :] + inflate
     Mo = structure.others(M)
@@ -353,7 +373,7 @@ def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, 
     return jnp.maximum(jnp.max(pen, axis=(0, 2)), 0.0)
 
 
-def free_goals(goal_p, p, occupant, radius, inflate, mask):
+def free_goals(goal_p, p, occupant, radius, inflate, mask, floor=None):
     """Goals another robot occupies (module docstring): shrink inflations, move goals.
 
     Args:
@@ -361,17 +381,20 @@ def free_goals(goal_p, p, occupant, radius, inflate, mask):
         occupant: (M, M, N) where observer i expects sender j to end (its prediction's
             end position).  radius: (M,) planning radii (safety margin included).
         inflate: (M, M) extra radius observer i gives sender j.  mask: (M, M) bool,
-            the senders that count.
+            the senders that count.  floor: (M, M) part of ``inflate`` never given up
+            (default 0: where a held robot is known to be only that well).
     Returns:
         (goal (M, N) to plan to, inflate (M, M) shrunk where a goal is inside it,
         moved (M,) bool: the goal had to move).  Finite for finite input; a non-finite
         occupant never moves a goal.
     """
-    base = radius[:, None] + radius[None, :]  # (M, M) distance never given up
+    floor = jnp.zeros_like(inflate) if floor is None else jnp.minimum(floor, inflate)
+    radii = radius[:, None] + radius[None, :]
+    base = radii + floor  # (M, M) distance never given up
     ok = mask & jnp.all(jnp.isfinite(occupant), axis=-1)
     d0 = jnp.linalg.norm(goal_p[:, None, :] - occupant, axis=-1)
-    room = jnp.where(ok, d0 - base - GOAL_CLEARANCE, jnp.inf)
-    inflate = jnp.where(ok, jnp.clip(jnp.minimum(inflate, room), 0.0, None), inflate)
+    room = jnp.where(ok, d0 - radii - GOAL_CLEARANCE, jnp.inf)
+    inflate = jnp.where(ok, jnp.maximum(jnp.minimum(inflate, room), floor), inflate)
     target = base + GOAL_CLEARANCE
     g = goal_p
     N = goal_p.shape[-1]

@@ -44,6 +44,27 @@ def test_inflation_shrinks_so_the_goal_stays_reachable():
     assert d - (2 * R + inf[1]) == pytest.approx(GOAL_CLEARANCE, abs=1e-12)
 
 
+def test_floor_of_a_held_robot_is_never_given_up():
+    # inflation 0.5 of which 0.15 is a floor (where a silent robot can be): a goal 2R + 0.3
+    # from it keeps 0.25 of inflation (0.3 - clearance), one at 2R + 0.1 moves out to
+    # 2R + 0.15 + clearance and the inflation stays at the floor
+    M = 2
+    occ = np.zeros((M, M, 3))
+    m = np.ones((M, M), bool) & ~np.eye(M, dtype=bool)
+    floor = jnp.full((M, M), 0.15)
+    for gap, want_inf, want_d in ((0.3, 0.3 - GOAL_CLEARANCE, 2 * R + 0.3),
+                                  (0.1, 0.15, 2 * R + 0.15 + GOAL_CLEARANCE)):
+        goals = np.zeros((M, 3))
+        goals[0] = [2 * R + gap, 0, 0]
+        pos = np.array([[5.0, 0, 0], [0, 0, 0]])
+        g, inf, moved = free_goals(jnp.asarray(goals), jnp.asarray(pos), jnp.asarray(occ),
+                                   jnp.full((M,), R), jnp.full((M, M), MAX_INFLATION),
+                                   jnp.asarray(m), floor)
+        assert float(inf[0, 1]) == pytest.approx(want_inf)
+        assert float(jnp.linalg.norm(g[0])) == pytest.approx(want_d)
+        assert bool(moved[0]) == (gap < 0.15 + GOAL_CLEARANCE)
+
+
 def test_occupied_goal_moves_to_the_nearest_free_point():
     g, inf, moved = _call([0.3, 0.1, 0], [5.0, 0, 0], [[0.0, 0, 0]])
     assert moved and inf[1] == 0.0
@@ -145,3 +166,18 @@ def test_free_end_stops_short_of_a_frozen_robot_beyond_its_goal(beside_frozen):
     assert m["collisions"] == 0, m["min_separation_ratio"]
     assert m["min_separation_ratio"] > 1.0
     assert m["per_robot"][1]["reached"], m["per_robot"][1]
+
+
+def test_free_end_robot_waits_still_beside_a_frozen_robot_on_its_goal(beside_frozen):
+    # the goal moved out of the frozen robot: the robot plans a rest end there and
+    # hovers, rather than flying through the moved goal and back at speed
+    res = beside_frozen(0.5, end="free")
+    m = res.metrics
+    assert m["collisions"] == 0
+    assert m["fallbacks"]["goal_occupied"] > 0
+    t = res.arrays["t"]
+    late = t >= t[-1] - 3.0
+    speed = np.linalg.norm(res.arrays["vel"][1, late], axis=-1)
+    assert np.max(speed) < 0.05, np.max(speed)
+    d = np.linalg.norm(res.arrays["pos"][1, late] - np.array([0.0, 0.0, 1.5]), axis=-1)
+    assert np.all(d >= 0.73 - 1e-3) and np.all(d <= 0.73 + GOAL_CLEARANCE + 0.03), d
