@@ -72,6 +72,8 @@ ERRORS = [
     (two(planner={"degree": 4}), "planner.degree", "must be >= 5, got 4"),
     (two(planner={"segments": 0}), "planner.segments", "must be >= 1, got 0"),
     (two(planner={"q_obs": -1.0}), "planner.q_obs", "must be >= 0"),
+    (two(planner={"coast_samples": -1}), "planner.coast_samples", "must be >= 0"),
+    (two(planner={"coast_samples": 2.5}), "planner.coast_samples", "expected an integer"),
     (two(planner={"k_p": 0.0}), "planner.k_p", "must be > 0"),
     (two(planner={"collision": "barier"}), "planner.collision",
      "unknown value 'barier' (did you mean 'barrier'?)"),
