@@ -336,6 +336,10 @@ def _row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
 # ------------------------------------------------------------------------ config guard
 
 _FREE_TABLES = ("sweep", "name", "description")
+# keys added later whose default changed what a run does: a config.toml without one was
+# written by a version that behaved as this value (so resuming it under the new default
+# is a different config, not the same one)
+_LEGACY_VALUES = {("planner", "coast_samples"): 0}
 
 
 def _guard_config(out: Path, config: Config) -> None:
@@ -348,7 +352,11 @@ def _guard_config(out: Path, config: Config) -> None:
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
             raise SweepError(f"{path}: unreadable ({e}); use another --out") from None
         # compare resolved configs: a key added later with its default (written by this
-        # version, absent from an older config.toml) is no difference
+        # version, absent from an older config.toml) is no difference, unless the
+        # default changed the behaviour (_LEGACY_VALUES)
+        for (table, key), value in _LEGACY_VALUES.items():
+            if isinstance(old.get(table, {}), dict) and key not in old.get(table, {}):
+                old.setdefault(table, {})[key] = value
         try:
             old = tomllib.loads(config_to_toml(parse_config(old, source=str(path))))
         except ConfigError as e:

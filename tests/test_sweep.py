@@ -4,6 +4,7 @@ end to end with a real SIGKILL of a subprocess and a resume."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import signal
 import subprocess
 import sys
@@ -156,6 +157,15 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
     (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
+    # a config.toml written before coast_samples existed ran without coast constraints
+    # (the new default is 8): resuming it is a different config
+    doc["planner"]["max_neighbors"] = 0
+    doc["planner"].pop("coast_samples")
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    with pytest.raises(SweepError, match="different config.*planner"):
+        _guard_config(tmp_path, cfg)
+    _guard_config(tmp_path, dataclasses.replace(
+        cfg, planner=dataclasses.replace(cfg.planner, coast_samples=0)))  # same: accepted
     doc["planner"]["no_such_key"] = 1
     (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
     with pytest.raises(SweepError, match="not a config this version reads"):
