@@ -505,7 +505,7 @@ def _batch_size(batch_size: int | None) -> int:
 
 def _structure(config: Config, n_dim: int) -> RolloutStructure:
     """The config's static structure for fleets in n_dim dimensions."""
-    st = structures(config)
+    st = structures(config, only_needed=False)  # the grid may hold free-end scenarios
     nlp = dataclasses.replace(st.planner.nlp, n_dim=n_dim)
     return dataclasses.replace(st, planner=dataclasses.replace(st.planner, nlp=nlp))
 
