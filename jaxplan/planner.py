@@ -272,7 +272,8 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     # a robot whose goal moved waits there: a rest end, not a free end it would fly
     # through at speed (and back, every replan)
     rest = rest | goal_moved
-    goal_v = jnp.where(goal_moved[:, None], 0.0, goal_v)
+    # (a non-finite goal velocity stays non-finite: the solve must still report it)
+    goal_v = jnp.where(goal_moved[:, None] & jnp.isfinite(goal_v), 0.0, goal_v)
     limits_i = Limits(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
     other_radius = fp.radius[None, :] + inflate
     Mo = structure.others(M)
@@ -415,7 +416,7 @@ def free_goals(goal_p, p, occupant, radius, inflate, mask, floor=None):
                                 e0))
         rad = jnp.take_along_axis(target, j[:, None], 1)[:, 0]
         g = jnp.where(inside[:, None], c + rad[:, None] * u, g)
-    moved = jnp.any(g != goal_p, axis=-1)
+    moved = jnp.any(g != goal_p, axis=-1) & jnp.all(jnp.isfinite(goal_p), axis=-1)
     return g, inflate, moved
 
 
