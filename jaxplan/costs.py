@@ -451,14 +451,11 @@ def _col_features(x, params, structure, kc, derivs):
     n = structure.n_coast
     if not n:
         return y
-    z, tau = unpack(x, structure)
-    T = jnp.exp(tau)
-    h = T / structure.segments
-    ez = jnp.concatenate([boundary_vector(params, h), z.T], axis=0)
-    p1 = kc.end[0] @ ez  # (1, N)
-    v1 = (kc.end[1] @ ez) / h
+    N = structure.n_dim
+    e = _features(x, params, structure, kc.end, (0, 1))[0]  # (p(T), v(T), T)
     t = jnp.arange(1, n + 1) / n * coast_time(params.limits)
-    yk = jnp.concatenate([p1 + t[:, None] * v1, jnp.broadcast_to(T, (n, 1))], axis=-1)
+    yk = jnp.concatenate([e[:N] + t[:, None] * e[N : 2 * N], jnp.broadcast_to(e[-1], (n, 1))],
+                         axis=-1)
     return jnp.concatenate([y, yk], axis=0)
 
 

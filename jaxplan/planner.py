@@ -328,9 +328,8 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     def choose():
         viol = lambda tr: plan_violation(tr, params.others, params.radius, other_radius,
                                          other_mask)
-        safe_sol = sel(usable, sol.traj, brake)
-        v_sol = jnp.where(usable, viol(safe_sol), jnp.inf)
-        v_prev = jnp.where(prev_ok, viol(sel(prev_ok, prev, brake)), jnp.inf)
+        v_sol = jnp.where(usable, viol(sol.traj), jnp.inf)
+        v_prev = jnp.where(prev_ok, viol(prev), jnp.inf)
         return pick_fallback(v_sol, v_prev, viol(brake))
 
     fallback = jnp.where(accepted, ACCEPTED, jax.lax.cond(

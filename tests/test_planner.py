@@ -206,20 +206,11 @@ def test_coast_rows_only_where_a_free_end_can_occur():
 
     from jaxplan.config import parse_config
     from jaxplan.sweep import _structure
+    from tests.conftest import TINY_TOML
 
     def cfg(end):
-        return parse_config(tomllib.loads(f"""
-[planner]
-end_state = "{end}"
-[[robots]]
-vehicle = "firefly"
-start = [0.0, 0.0, 1.0]
-goal = [3.0, 0.0, 1.0]
-[[robots]]
-vehicle = "firefly"
-start = [3.0, 0.5, 1.0]
-goal = [0.0, 0.5, 1.0]
-"""), source="t.toml")
+        return parse_config(tomllib.loads(TINY_TOML + f'[planner]\nend_state = "{end}"\n'),
+                            source="t.toml")
     assert ex.structures(cfg("free")).planner.nlp.n_coast_samples == 8
     assert ex.structures(cfg("rest")).planner.nlp.n_coast_samples == 0
     assert _structure(cfg("rest"), 3).planner.nlp.n_coast_samples == 8  # a sweep keeps them
