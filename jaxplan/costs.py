@@ -37,7 +37,11 @@ Objective terms (all integrals over [0, T], T = exp(tau)):
               Taylor continuation above (keeps the value finite; documented deviation).
   collision   per ``NLPStructure.collision``:
      "paper"       q_obs * int sum_j (dx . dv) / (d exp(k_p (d - rho_j))) dt  (the printed
-                   term; a total derivative, so path independent, MATH.md)
+                   term).  It is a total derivative (MATH.md), so it is integrated
+                   exactly, as q_obs sum_j (exp(-k_p (d_j(0) - rho_j)) - exp(-k_p (d_j(T)
+                   - rho_j))) / k_p: path independent.  (Quadrature of the printed
+                   integrand is path dependent only through its error, which a solver
+                   then exploits: objective unbounded in the nodes, no convergence.)
      "barrier"     q_obs * int sum_j exp(-k_p (d_j - rho_j)) dt
      "constraint"  d_j(t_k)^2 >= rho_j^2 at the collision samples (hard; augmented
                    Lagrangian in the solver)
@@ -446,7 +450,7 @@ def _col_samples(params, structure):
 
 def _col_features(x, params, structure, kc, derivs):
     """:func:`_features` at the collision samples, then (coast) the positions
-    p(T) + v(T) t_c k / n (only with derivs == (0,), i.e. without the "paper" term)."""
+    p(T) + v(T) t_c k / n (derivs must be (0,) when there are coast rows)."""
     y = _features(x, params, structure, kc.col, derivs)
     n = structure.n_coast
     if not n:
@@ -515,30 +519,22 @@ def al_term(g, lam, mu):
 
 
 # ---------------------------------------------------------------------- local terms
-def _collision_local(y, jet, s, w, lam, T_ref, params, structure, mu, use_jet, on=True):
-    """Collision terms at one sample: y = (p (N), [v (N)], T); ``on``: its constraint
-    is active."""
+def _collision_local(y, o, w, lam, params, structure, mu, on=True):
+    """Sampled collision terms (barrier, AL of the constraints) at one sample: y = (p (N),
+    T), o (Mo, N) the others' positions there; ``on``: its constraint is active."""
     N = structure.n_dim
     p = y[:N]
     T = y[-1]
-    dl = (T - T_ref) * s if use_jet else 0.0
-    o = jet[0] + jet[1] * dl + 0.5 * jet[2] * dl * dl  # (Mo, N)
     dx = p - o
     d2 = jnp.sum(dx * dx, axis=-1)
     mask = params.other_mask
     rho = params.radius + params.other_radius
     wt = params.weights
     val = 0.0
-    if structure.barrier or structure.paper:
+    if structure.barrier:
         d = jnp.sqrt(d2 + DIST_EPS2)
         ex = jnp.exp(-wt.k_p * (d - rho))
-        if structure.barrier:
-            val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, ex, 0.0))
-        if structure.paper:
-            v = y[N : 2 * N]
-            ov = jet[1] + jet[2] * dl + 0.5 * jet[3] * dl * dl
-            c = jnp.sum(dx * (v - ov), axis=-1) / d * ex
-            val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, c, 0.0))
+        val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, ex, 0.0))
     if structure.collision_constraints and lam is not None:
         g = d2 - rho * rho
         val = val + jnp.sum(jnp.where(mask & on, al_term(g, lam, mu), 0.0))
@@ -579,12 +575,25 @@ def _smooth_time(x, params, structure, kc):
     return params.weights.q_dynm * jerk + params.weights.k_t * T
 
 
-def _col_derivs(structure):
-    return (0, 1) if structure.paper else (0,)
-
-
 def _has_collision(structure):
-    return structure.collision != "none"
+    """Whether the NLP has SAMPLED collision terms (barrier or constraints)."""
+    return structure.barrier or structure.collision_constraints
+
+
+def _paper_exact(x, params, structure, kc):
+    """The "paper" collision term integrated exactly (module doc): q_obs sum_j
+    (exp(-k_p (d_j(0) - rho_j)) - exp(-k_p (d_j(T) - rho_j))) / k_p, d_j(t) = |x(t) -
+    x_j(t)| (softened by DIST_EPS2 as the sampled terms are)."""
+    N = structure.n_dim
+    yT = _features(x, params, structure, kc.end, (0,))[0]  # (p(T), T)
+    T = yT[-1]
+    o = _others_derivs(params.others, params.other_mask, jnp.stack([jnp.zeros_like(T), T]), 0)[0]
+    p = jnp.stack([params.p0, yT[:N]])  # (2, N)
+    d = jnp.sqrt(jnp.sum((p[:, None, :] - o) ** 2, axis=-1) + DIST_EPS2)  # (2, Mo)
+    rho = params.radius + params.other_radius
+    wt = params.weights
+    ex = jnp.where(params.other_mask, jnp.exp(-wt.k_p * (d - rho)), 0.0)
+    return wt.q_obs * jnp.sum(ex[0] - ex[1]) / wt.k_p
 
 
 # ---------------------------------------------------------------------- values
@@ -601,24 +610,23 @@ def _terms(x, params, structure, kc, mult: Multipliers | None, mu, with_g: bool 
     val = val + jnp.sum(jax.vmap(lambda y, w: _limits_local(y, w, params, structure))(
         yq, jnp.asarray(b.quad_w)))
     gc = jnp.ones((structure.n_col, Mo), x.dtype)
+    if structure.paper:
+        val = val + _paper_exact(x, params, structure, kc)
     if _has_collision(structure):
         N = structure.n_dim
-        yc = _col_features(x, params, structure, kc, _col_derivs(structure))
+        yc = _col_features(x, params, structure, kc, (0,))
         T = yc[0, -1]
         s, off, w, on = _col_samples(params, structure)
-        jet = _others_derivs(params.others, params.other_mask, T * s + off,
-                             1 if structure.paper else 0)
-        o1 = jet[1] if structure.paper else jnp.zeros_like(jet[0])
+        o0 = _others_derivs(params.others, params.other_mask, T * s + off, 0)[0]
         lam = mult.collision if mult is not None else None
 
-        def one(y, a0, a1, sk, wk, lk, ok):
-            return _collision_local(y, (a0, a1, 0.0, 0.0), sk, wk, lk, 0.0, params, structure, mu,
-                                    False, ok)
+        def one(y, a0, wk, lk, ok):
+            return _collision_local(y, a0, wk, lk, params, structure, mu, ok)
 
-        vals = jax.vmap(one)(yc, jet[0], o1, s, w, lam, on)
+        vals = jax.vmap(one)(yc, o0, w, lam, on)
         val = val + jnp.sum(vals)
         if with_g and structure.collision_constraints:
-            dx = yc[:, None, :N] - jet[0]
+            dx = yc[:, None, :N] - o0
             rho = params.radius + params.other_radius
             gc = jnp.where(params.other_mask & on[:, None],
                            jnp.sum(dx * dx, axis=-1) - rho**2, 1.0)
@@ -815,29 +823,22 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
     v, g, H = _assemble(featq, x, vq, gq, Hq)
     total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
 
+    if structure.paper:
+        v, g, H = _vgh(lambda xx: _paper_exact(xx, params, structure, kc), x)
+        total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
+
     if _has_collision(structure):
-        featc = lambda xx: _col_features(xx, params, structure, kc, _col_derivs(structure))
+        featc = lambda xx: _col_features(xx, params, structure, kc, (0,))
         yc = featc(x)
         T = jax.lax.stop_gradient(yc[0, -1])
         s, off, w, on = _col_samples(params, structure)
-        R = 3 if structure.paper else 2
-        jet = _others_derivs(params.others, params.other_mask, T * s + off, R)
-        jet = jet + [jnp.zeros_like(jet[0])] * (4 - len(jet))
+        jet = _others_derivs(params.others, params.other_mask, T * s + off, 2)
         lam = (mult.collision if structure.collision_constraints
                else jnp.zeros(jet[0].shape[:2], x.dtype))
-        if structure.paper:
-            def loc(y, jk, sk, wk, lk):
-                return _vgh(
-                    lambda yy: _collision_local(yy, jk, sk, wk, lk, T, params, structure, mu, True),
-                    y,
-                )
-
-            vc, gc, Hc = jax.vmap(loc)(yc, jet, s, w, lam)
-        else:
-            vc, gc, Hc = jax.vmap(
-                lambda y, a0, a1, a2, sk, wk, lk, ok: _collision_radial(
-                    y, a0, a1, a2, sk, wk, lk, params, structure, mu, ok)
-            )(yc, jet[0], jet[1], jet[2], s, w, lam, on)
+        vc, gc, Hc = jax.vmap(
+            lambda y, a0, a1, a2, sk, wk, lk, ok: _collision_radial(
+                y, a0, a1, a2, sk, wk, lk, params, structure, mu, ok)
+        )(yc, jet[0], jet[1], jet[2], s, w, lam, on)
         v, g, H = _assemble(featc, x, vc, gc, Hc)
         total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
 
@@ -850,19 +851,3 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
         v, g, H = _assemble(feath, x, vh, gh, Hh)
         total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
     return total_v, total_g, total_H
-
-
-def paper_term_closed_form(x, params, structure):
-    """The exact integral of the "paper" collision term (a total derivative):
-    q_obs sum_j (exp(-k_p (d_j(0) - rho_j)) - exp(-k_p (d_j(T) - rho_j))) / k_p."""
-    c, T = coefficients(x, params, structure)
-    traj = Trajectory.from_normalized(c, T)
-    wt = params.weights
-    rho = params.radius + params.other_radius
-    out = 0.0
-    for t, sign in ((0.0, 1.0), (T, -1.0)):
-        p = traj.evaluate(t)
-        o = _others_derivs(params.others, params.other_mask, jnp.reshape(t, (1,)), 0)[0][0]
-        d = jnp.sqrt(jnp.sum((p - o) ** 2, axis=-1) + DIST_EPS2)
-        out = out + sign * jnp.sum(jnp.where(params.other_mask, jnp.exp(-wt.k_p * (d - rho)), 0.0))
-    return wt.q_obs * out / wt.k_p

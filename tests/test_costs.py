@@ -10,6 +10,7 @@ from jaxplan import costs
 from jaxplan.benchmarks.solver import random_problem, weights
 from jaxplan.costs import Multipliers, NLPStructure
 from jaxplan.predict import quintic_coeffs
+from jaxplan.trajectory import Trajectory
 
 
 def _x(rng, st, T, scale=0.2):
@@ -87,24 +88,43 @@ def test_z0_is_closed_form_prediction_and_jerk_is_exact(rest):
 
 def test_paper_term_is_path_independent():
     """The printed collision term is a total derivative (MATH.md): its integral depends
-    only on the end points, not on the path in between."""
-    st = NLPStructure(collision="paper", segments=2, n_collision_samples=256)
-    st0 = NLPStructure(collision="none", segments=2, n_collision_samples=256)
+    only on the end points, not on the path in between.  Reference: the printed
+    integrand (dx . dv) / (d exp(k_p (d - rho))) integrated densely (composite Simpson,
+    20,000 panels) along four different paths with the same end points; the NLP's
+    "paper" term (integrated exactly) must equal each of them."""
+    st = NLPStructure(collision="paper", segments=2)
+    st0 = NLPStructure(collision="none", segments=2)
     rng = np.random.default_rng(3)
-    p = random_problem(rng, n_others=5, w=weights(q_obs=1.0, k_p=2.0, q_lim=0.0))
-    xs = jnp.stack([_x(rng, st, 5.0, 0.1 * i) for i in range(4)])
-    f = jax.jit(jax.vmap(lambda x: (costs.objective(x, p, st) - costs.objective(x, p, st0),
-                                    costs.paper_term_closed_form(x, p, st))))
-    terms, closed = f(xs)
-    # quadrature of a term whose integrand has kinks where paths cross: 1e-3
-    np.testing.assert_allclose(terms, closed, rtol=1e-3)
-    # the closed form itself: different paths, same end points and T, the same value
-    assert np.ptp(np.asarray(closed)) < 1e-12
-    assert np.ptp(np.asarray(terms)) < 2e-3 * np.max(np.abs(terms))
+    q_obs, k_p = 1.0, 2.0
+    p = random_problem(rng, n_others=5, w=weights(q_obs=q_obs, k_p=k_p, q_lim=0.0))
+    T = 5.0
+    xs = jnp.stack([_x(rng, st, T, 0.1 * i) for i in range(4)])
+    nlp = jax.jit(jax.vmap(lambda x: costs.objective(x, p, st) - costs.objective(x, p, st0)))(xs)
+    t = np.linspace(0.0, T, 40001)
+    sw = np.ones_like(t)
+    sw[1:-1:2], sw[2:-1:2] = 4.0, 2.0
+    sw *= (t[1] - t[0]) / 3.0
+    o = np.asarray(p.others.evaluate(t[:, None]))  # (K, Mo, N)
+    ov = np.asarray(p.others.evaluate(t[:, None], 1))
+    rho = float(p.radius) + np.asarray(p.other_radius)
+    mask = np.asarray(p.other_mask)
+    dense, ends = [], []
+    for x in xs:
+        c, TT = costs.coefficients(x, p, st)
+        tr = Trajectory.from_normalized(c, TT)
+        dx = np.asarray(tr.evaluate(t))[:, None, :] - o
+        dv = np.asarray(tr.evaluate(t, 1))[:, None, :] - ov
+        d = np.linalg.norm(dx, axis=-1)
+        integrand = np.sum(dx * dv, axis=-1) / d * np.exp(-k_p * (d - rho))
+        dense.append(q_obs * np.sum(sw @ np.where(mask, integrand, 0.0)))
+        ends.append(np.asarray(tr.evaluate(T)))
+    np.testing.assert_allclose(np.ptp(ends, axis=0), 0.0, atol=1e-9)  # same end points
+    assert np.ptp([float(np.max(np.abs(np.asarray(x[:-1])))) for x in xs]) > 0.1  # paths differ
+    np.testing.assert_allclose(dense, dense[0], rtol=1e-7)  # path independent
+    np.testing.assert_allclose(np.asarray(nlp), dense, rtol=1e-7)
 
 
 def test_others_hold_or_coast_after_their_end():
-    from jaxplan.trajectory import Trajectory
     c = np.zeros((2, 1, 3, 6))
     c[:, 0, 0, 1] = 2.0  # x = 2 s (normalized), T = 2 -> 1 m/s
     tr = Trajectory.from_normalized(c, jnp.asarray([2.0, 2.0]), coast=jnp.asarray([False, True]))
