@@ -96,6 +96,34 @@ def test_vmapped_batch_equals_single_solves_and_nan_lane():
     assert np.mean(sol.status == solver.CONVERGED) >= 0.9
 
 
+def test_pool_size_does_not_change_results():
+    """solve_batch steps ``pool`` lanes at a time, refilling finished slots (the work is
+    the sum of the lanes' iterations, not B x the largest): every lane must come out as
+    with the plain vmap (pool = B), whatever the pool: the same iterations and status
+    everywhere, and the same floats to rounding on converged lanes (XLA vectorizes
+    different batch widths differently; in the lanes that end INFEASIBLE after 60
+    ill-conditioned iterations those last-bit differences grow to ~1e-9, so they are
+    compared by status only); a lane whose x0 is not finite starts from initial_guess
+    as solve() does."""
+    ps, P = _s1_batch()
+    x0 = solver.initial_guess_batch(P, S1)
+    x0 = x0.at[5].set(jnp.nan)
+    ref = jax.device_get(solver.solve_batch(P, x0, S1, pool=B))
+    assert len(set(ref.iterations.tolist())) > 3  # uneven: the pool has work to balance
+    conv = ref.status == solver.CONVERGED
+    for pool in (1, 7):
+        sol = jax.device_get(solver.solve_batch(P, x0, S1, pool=pool))
+        np.testing.assert_array_equal(sol.status, ref.status)
+        np.testing.assert_array_equal(sol.iterations, ref.iterations)
+        for a, b in zip(jax.tree.leaves(sol), jax.tree.leaves(ref), strict=True):
+            assert np.all(np.isfinite(a) | np.isinf(b))
+            np.testing.assert_allclose(np.asarray(a)[conv], np.asarray(b)[conv],
+                                       rtol=1e-9, atol=1e-9)
+    one = jax.device_get(_one(ps[5], jnp.full(S1.n_x, jnp.nan)))
+    np.testing.assert_allclose(one.x, ref.x[5], rtol=1e-9, atol=1e-9)
+    assert one.iterations == ref.iterations[5] and ref.status[5] == solver.CONVERGED
+
+
 def test_changing_weights_does_not_recompile():
     ps, P = _s1_batch()
     x0 = solver.initial_guess_batch(P, S1)
