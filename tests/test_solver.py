@@ -181,3 +181,33 @@ def test_warm_start_is_finite_for_degenerate_previous_plans():
     x = _warm(sol.traj, p)
     assert (np.all(np.isfinite(x))
             and abs(float(jnp.exp(x[-1]) - (sol.traj.duration - 0.125))) < 1e-9)
+
+
+def test_solution_is_differentiable_in_the_weights():
+    """solve_differentiable: d(log T*, objective*)/d(q_obs, q_lim) by implicit
+    differentiation (jaxopt custom_root) equals central finite differences of solves
+    run to machine precision (barrier mode: exact there, see its docstring)."""
+    st = NLPStructure(collision="barrier", segments=2)
+    rng = np.random.default_rng(11)
+    p = random_problem(rng, n_others=4, rest=False)
+    x0 = solver.initial_guess(p, st)
+    tight = solver.SolverSettings(tol_stationarity=0.0, max_iters=80)
+
+    def out(q_obs, q_lim, x_start):
+        w = p.weights._replace(q_obs=q_obs, q_lim=q_lim)
+        s = solver.solve_differentiable(p._replace(weights=w), x_start, st, tight)
+        return jnp.stack([s.x[-1], s.objective]), s
+
+    f = jax.jit(out)
+    q = (jnp.asarray(10.0), jnp.asarray(1.0))
+    (y, sol) = f(*q, x0)
+    assert sol.status == solver.MAX_ITERS and sol.decrement < 1e-20  # converged to rounding
+    jac = jax.jit(jax.jacrev(lambda a, b: out(a, b, sol.x)[0], argnums=(0, 1)))(*q)
+    for k, qk in enumerate(q):
+        h = 1e-4 * float(qk)
+        up = list(q)
+        dn = list(q)
+        up[k], dn[k] = qk + h, qk - h
+        fd = (f(*up, sol.x)[0] - f(*dn, sol.x)[0]) / (2 * h)
+        assert float(jnp.max(jnp.abs(fd))) > 1e-4  # the weight matters here
+        np.testing.assert_allclose(jac[k], fd, rtol=1e-5, atol=1e-8)
