@@ -5,7 +5,7 @@
     seed = 0                          # 0 <= seed < 2**63; seeds every random choice
     [planner]  replan_hz, q_dynm, q_obs, q_lim, k_t, k_p, collision, degree, segments,
                end_state, max_iters, tol, n_samples, safety_margin_m, max_neighbors,
-               coast_samples
+               coast_samples, solver_pool
     [limits]   v_max, a_max, j_max    (optional overrides of the per-vehicle defaults)
     [sim]      backend, duration_s, physics_hz, control_hz, goal_tolerance_m,
                goal_speed_tolerance_mps
@@ -89,6 +89,7 @@ DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tol
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
 DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
 DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
+DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solver.default_pool)
 DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
 MAX_COAST_SAMPLES = 256
 
@@ -135,6 +136,10 @@ class PlannerConfig:
     after T (p(T) + v(T) t, for t up to the time a stop from v_max takes) at this many
     sample times (hard constraints; only in the "constraint" modes; 0 = off, the paper's
     NLP: a free-end plan may then arrive at speed with a robot just beyond its goal).
+    solver_pool (>= 0): how many robots' NLPs the solver steps at once in a replan
+    (jaxplan.solver.solve_lanes); 0 = automatic: ceil(M / 8) on a CPU, all M elsewhere.
+    Speed only: every NLP takes the same iterations whatever the pool (results equal to
+    rounding, which a closed loop can amplify into slightly different runs).
     """
 
     replan_hz: float = DEFAULT_REPLAN_HZ
@@ -153,6 +158,7 @@ class PlannerConfig:
     safety_margin_m: float = DEFAULT_SAFETY_MARGIN_M
     max_neighbors: int = DEFAULT_MAX_NEIGHBORS
     coast_samples: int = DEFAULT_COAST_SAMPLES
+    solver_pool: int = DEFAULT_SOLVER_POOL
 
 
 @dataclass(frozen=True)
@@ -411,6 +417,7 @@ def _parse_planner(c: _Ctx, raw: Any) -> PlannerConfig:
                                 le=MAX_ROBOTS),
         coast_samples=c.integer(g("coast_samples"), "planner.coast_samples", ge=0,
                                 le=MAX_COAST_SAMPLES),
+        solver_pool=c.integer(g("solver_pool"), "planner.solver_pool", ge=0, le=MAX_ROBOTS),
     )
 
 

@@ -78,7 +78,8 @@ def structures(config: Config, *, only_needed: bool = True) -> RolloutStructure:
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults
     return RolloutStructure(planner=PlannerStructure(nlp=nlp, max_iters=pc.max_iters,
-                                                             max_neighbors=pc.max_neighbors),
+                                                     max_neighbors=pc.max_neighbors,
+                                                     solver_pool=pc.solver_pool),
                             steps=steps, faults=fc.enabled,
                             latency_periods=round(fc.latency_s * pc.replan_hz) if fc.enabled
                             else 0)

@@ -85,11 +85,14 @@ class PlannerStructure:
     max_neighbors: 0 (every other robot is in each robot's NLP) or K >= 1: each robot's
     NLP holds only the K others that come nearest to its own closed-form prediction
     (:func:`nearest_neighbors`); the NLP's cost then grows with K, not with the fleet.
+    solver_pool: robots' NLPs stepped at once (:func:`jaxplan.solver.solve_lanes`);
+    0 = :func:`jaxplan.solver.default_pool` of the fleet size.
     """
 
     nlp: NLPStructure = field(default_factory=NLPStructure)
     max_iters: int = 60
     max_neighbors: int = 0
+    solver_pool: int = 0
 
     def others(self, M: int) -> int:
         """Other-robot slots in each NLP of an M-robot fleet (M: the fleet, padded)."""
@@ -307,8 +310,10 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     pen = jnp.where(ps.has_plan, ps.penalty, fp.settings.mu0)
     settings = fp.settings
     # x0 is finite (initial_guess is finite for any input): no fallback guess needed
-    sol = jax.vmap(lambda pr, x, m, pe: slv.solve(pr, x, nlp, settings, m, pe, x))(
-        params, x0, mult, pen)
+    # a pool of lanes: the replan costs about the sum of the robots' iterations, not M
+    # times the largest (a 20-robot random-box run: 6.9 s instead of 22.8 s on 2 cores)
+    pool = structure.solver_pool or slv.default_pool(M)
+    sol = slv.solve_lanes(params, x0, nlp, settings, mult, pen, x_fallback=x0, pool=pool)
 
     finite = jnp.all(jnp.isfinite(sol.traj.coeffs), axis=(-1, -2, -3)) & jnp.all(
         jnp.isfinite(sol.traj.breaks), axis=-1)

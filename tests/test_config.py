@@ -74,6 +74,8 @@ ERRORS = [
     (two(planner={"q_obs": -1.0}), "planner.q_obs", "must be >= 0"),
     (two(planner={"coast_samples": -1}), "planner.coast_samples", "must be >= 0"),
     (two(planner={"coast_samples": 2.5}), "planner.coast_samples", "expected an integer"),
+    (two(planner={"solver_pool": -1}), "planner.solver_pool", "must be >= 0"),
+    (two(planner={"solver_pool": 1.5}), "planner.solver_pool", "expected an integer"),
     (two(planner={"k_p": 0.0}), "planner.k_p", "must be > 0"),
     (two(planner={"collision": "barier"}), "planner.collision",
      "unknown value 'barier' (did you mean 'barrier'?)"),
