@@ -21,6 +21,12 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
   lam~ = max(0, lam - mu g) (the multiplier estimate whose Lagrangian gradient is the
   AL gradient).  A bounded loop (``max_iters``); per-lane status, never raised.
 
+Batches: :func:`solve_batch` / :func:`solve_lanes` step a pool of lanes at a time and
+hand each finished slot the next lane, so a batch costs about the sum of its lanes'
+iterations rather than B times the largest (each lane's iterations are those of
+:func:`solve`).  :func:`solve_differentiable`: the solution differentiable with respect
+to the weights by implicit differentiation (jaxopt ``custom_root``).
+
 Status codes (``Solution.status``, int32):
     0 CONVERGED      all three tests passed.
     1 MAX_ITERS      iteration budget spent, constraints satisfied to tolerance.
