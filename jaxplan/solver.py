@@ -438,10 +438,15 @@ def _pooled(st_all: _State, lane_all: _Lane, step, C: int, s: SolverSettings) ->
     return jax.lax.while_loop(cond, body, c0)[0]
 
 
+POOL_CAP_CPU = 32  # 64 x 10 batch, 2-core CPU: pools of 8-48 lanes 1.1-1.6 s, 80-160 2.0-2.3 s
+
+
 def default_pool(batch: int, backend: str | None = None) -> int:
-    """The pool size :func:`solve_batch` uses: ceil(B / 8) on a CPU, B elsewhere."""
+    """The pool size :func:`solve_batch` and the planner use: ceil(B / 8), at most
+    POOL_CAP_CPU, on a CPU (larger pools were slower per lane there: measured, not
+    modelled); B elsewhere."""
     backend = backend or jax.default_backend()
-    return max(1, -(-batch // 8)) if backend == "cpu" else batch
+    return max(1, min(-(-batch // 8), POOL_CAP_CPU)) if backend == "cpu" else batch
 
 
 _STRONG_DTYPES = (jnp.dtype(jnp.float64), jnp.dtype(jnp.int32), jnp.dtype(bool))
