@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import NamedTuple
 
 import jax
@@ -117,6 +118,9 @@ class _State(NamedTuple):
 
 def _tree_where(c, a, b):
     return jax.tree.map(lambda u, v: jnp.where(c, u, v), a, b)
+
+
+_tree_where_lanes = jax.vmap(_tree_where)  # the same, per lane (leading axis of c, a, b)
 
 
 def _max_violation(g: Multipliers):
@@ -399,12 +403,6 @@ def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
         st, lane, finite_in, x0u)
 
 
-def _tree_where_lanes(c, a, b):
-    """Per-lane select between two pytrees whose leaves have a leading lane axis."""
-    return jax.tree.map(lambda u, v: jnp.where(c.reshape(c.shape + (1,) * (u.ndim - 1)), u, v),
-                        a, b)
-
-
 def _pooled(st_all: _State, lane_all: _Lane, step, C: int, s: SolverSettings) -> _State:
     """Run every lane of ``st_all`` (B lanes) to its end with C slots (see solve_lanes)."""
     B = st_all.it.shape[0]
@@ -492,10 +490,7 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
     values (Python scalars or arrays) reuse the compiled function (``_solve_batch_jit``).
     ``pool``: lanes stepped at a time (:func:`solve_lanes`; default :func:`default_pool`
     of the number of problems); the results do not depend on it."""
-    B = 1
-    for n in x0.shape[:-1]:
-        B *= int(n)
-    pool = default_pool(B) if pool is None else pool
+    pool = default_pool(math.prod(x0.shape[:-1])) if pool is None else pool
     return _solve_batch_jit(_strong(params), _strong(x0), structure, _strong(settings),
                             None if multipliers is None else _strong(multipliers),
                             None if penalty is None else _strong(penalty), pool)
