@@ -477,13 +477,19 @@ def _others_derivs(others: Trajectory, mask, t, R: int):
     To = b[:, -1]
     tt = t[:, None]
     tc = jnp.clip(tt, 0.0, To[None, :])  # (K, Mo)
-    k = jnp.clip(jnp.sum(b[None, :, 1:So] <= tc[..., None], axis=-1), 0, So - 1)
-    lo = jnp.take_along_axis(b[None, :, :], k[..., None], axis=-1)[..., 0]
-    hi = jnp.take_along_axis(b[None, :, :], k[..., None] + 1, axis=-1)[..., 0]
+    if So == 1:  # closed-form predictions: one segment, nothing to look up
+        lo, hi = b[None, :, 0], b[None, :, 1]
+        ck = c[None, :, 0]  # (1, Mo, N, Kd)
+    else:  # the segment of each time, selected elementwise (a gather was ~5x slower on CPU)
+        k = jnp.clip(jnp.sum(b[None, :, 1:So] <= tc[..., None], axis=-1), 0, So - 1)
+        sel = [k == i for i in range(So)]
+        pick = lambda arr: sum(jnp.where(m, a, 0.0) for m, a in zip(sel, arr, strict=True))
+        lo = pick([b[None, :, i] for i in range(So)])
+        hi = pick([b[None, :, i + 1] for i in range(So)])
+        ck = sum(jnp.where(m[..., None, None], c[None, :, i], 0.0) for i, m in enumerate(sel))
     h = hi - lo
     he = jnp.where(h > 0, h, 1.0)
     s = jnp.where(h > 0, (tc - lo) / he, 0.0)
-    ck = jnp.take_along_axis(c[None], k[..., None, None, None], axis=2)[:, :, 0]  # (K, Mo, N, Kd)
     vals = []
     for r in range(max(R, 1) + 1):
         if r < Kd:
@@ -705,15 +711,19 @@ def _vgh(f, y, *args):
 
 def _assemble(feat, x, vals, G, Hl):
     """Chain rule through the per-sample features y = feat(x) (K, m)."""
-    J = jax.jacfwd(feat)(x)  # (K, m, n)
-    K, m, n = J.shape
+    n = x.shape[0]
+    et = jnp.zeros(n, x.dtype).at[-1].set(1.0)
+    # J = dy/dx and dJ/dtau in one forward-over-forward pass (y is linear in z for a
+    # fixed tau, so the features' second derivatives all lie in the tau row / column)
+    J, dJ = jax.jvp(jax.jacfwd(feat), (x,), (et,))  # (K, m, n) each
+    K, m, _ = J.shape
     # sum_k J_k^T Hl_k J_k as ONE (n, Km) @ (Km, n) product: XLA's CPU code for the
     # three-operand einsum was ~2x slower at these sizes (measured, K = 16..32, n = 16)
     Jf = J.reshape(K * m, n)
-    grad = G.reshape(K * m) @ Jf
+    Gf = G.reshape(K * m)
+    grad = Gf @ Jf
     H = Jf.T @ jnp.matmul(Hl, J).reshape(K * m, n)
-    et = jnp.zeros(n, x.dtype).at[-1].set(1.0)
-    u = jax.jvp(jax.grad(lambda xx: jnp.sum(G * feat(xx))), (x,), (et,))[1]
+    u = Gf @ dJ.reshape(K * m, n)  # sum_k G_k . d2 y_k / dx dtau
     H = H.at[:, -1].add(u).at[-1, :].add(u).at[-1, -1].add(-u[-1])
     return jnp.sum(vals), grad, H
 

@@ -134,6 +134,23 @@ def test_others_hold_or_coast_after_their_end():
     np.testing.assert_allclose(out[0][0, :, 0], [1.0, 1.0])
 
 
+@pytest.mark.parametrize("So", [1, 3])
+def test_others_derivs_match_trajectory_evaluate(So):
+    """The others' jet (values and two derivatives) equals Trajectory.evaluate, also at
+    segment breaks, before 0 and after the end (hold or coast), for one and several
+    segments (the one-segment case skips the segment look-up)."""
+    rng = np.random.default_rng(11)
+    Mo = 4
+    c = rng.normal(size=(Mo, So, 3, 6))
+    T = rng.uniform(1.0, 3.0, Mo)
+    tr = Trajectory.from_normalized(c, jnp.asarray(T), coast=jnp.asarray([False, True] * 2))
+    t = np.concatenate([[-0.5, 0.0], np.linspace(0.0, 3.5, 29), T[:1] * np.arange(So + 1) / So])
+    out = costs._others_derivs(tr, jnp.ones(Mo, bool), jnp.asarray(t), 2)
+    for r in range(3):
+        ref = np.asarray(tr.evaluate(jnp.clip(jnp.asarray(t), 0.0, None)[:, None], r))
+        np.testing.assert_allclose(out[r], ref, rtol=1e-10, atol=1e-10)
+
+
 @pytest.mark.parametrize("rest", [False, True])
 def test_coast_constraints_are_the_flown_coast(rest):
     """The coast rows of a free-end NLP are d^2 - rho^2 of the plan's own coast after T
