@@ -436,15 +436,21 @@ def _pooled(st_all: _State, lane_all: _Lane, step, C: int, s: SolverSettings) ->
     return jax.lax.while_loop(cond, body, c0)[0]
 
 
-POOL_CAP_CPU = 32  # 64 x 10 batch, 2-core CPU: pools of 8-48 lanes 1.1-1.6 s, 80-160 2.0-2.3 s
+POOL_CPU = 2  # lanes per step on a CPU (measured on 2 cores: see default_pool)
 
 
 def default_pool(batch: int, backend: str | None = None) -> int:
-    """The pool size :func:`solve_batch` and the planner use: ceil(B / 8), at most
-    POOL_CAP_CPU, on a CPU (larger pools were slower per lane there: measured, not
-    modelled); B elsewhere."""
+    """The pool size :func:`solve_batch` and the planner use: POOL_CPU (2) lanes on a
+    CPU, B elsewhere.
+
+    Measured on a 2-core CPU (`jaxplan bench solver` NLPs, warm replans with the AL
+    warm start): 100 robots with 16 neighbours 62 ms with pool 2, 78 with 1, 92 with 4,
+    166 with 13; with all 99 others 353 ms with 2, 377 with 4, 597 with 13; the 10-robot
+    replan and the 64 x 10 batch did not depend on the pool beyond the noise (pools 1-10
+    and 2-32).  Larger pools lose to the lockstep line search (every lane in a step
+    waits for the slowest backtracking) and to caches once the per-pair arrays grow."""
     backend = backend or jax.default_backend()
-    return max(1, min(-(-batch // 8), POOL_CAP_CPU)) if backend == "cpu" else batch
+    return max(1, min(batch, POOL_CPU)) if backend == "cpu" else batch
 
 
 _STRONG_DTYPES = (jnp.dtype(jnp.float64), jnp.dtype(jnp.int32), jnp.dtype(bool))
