@@ -137,7 +137,8 @@ class PlannerConfig:
     sample times (hard constraints; only in the "constraint" modes; 0 = off, the paper's
     NLP: a free-end plan may then arrive at speed with a robot just beyond its goal).
     solver_pool (>= 0): how many robots' NLPs the solver steps at once in a replan
-    (jaxplan.solver.solve_lanes); 0 = automatic: ceil(M / 8), at most 32, on a CPU, all M elsewhere.
+    (jaxplan.solver.solve_lanes); 0 = automatic (jaxplan.solver.default_pool): 2 on a
+    CPU, all M elsewhere.
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
     """
