@@ -15,7 +15,8 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
   floored at |lambda| >= reg * max|lambda| (eigh; negative curvature flipped), so the
   step is a descent direction; T >= t_min by projection (tau at its bound with an
   outward gradient is held); the step is capped (|dtau| <= max_step_tau, |dz|_inf <=
-  max_step_z); backtracking Armijo line search on L_A.
+  max_step_z); backtracking Armijo line search on L_A (a failed trial is cut back to
+  just past the first constraint it pushed into the steep AL branch, else halved).
 * Stopping: Newton decrement^2 <= tol_stationarity (1 + |L_A|), max violation <=
   tol_feasibility, max lam~ |g| <= tol_complementarity (1 + |L_A|), where
   lam~ = max(0, lam - mu g) (the multiplier estimate whose Lagrangian gradient is the
@@ -72,7 +73,8 @@ class SolverSettings(NamedTuple):
     max_step_z: float = 4.0
     armijo: float = 1e-4
     max_backtracks: int = 30
-    reg: float = 1e-10
+    kink_overshoot: float = 1.1  # backtracking past an AL branch crossing (_step)
+    reg: float = 1e-13  # eigenvalue floor / max|eigenvalue| (_direction)
 
 
 class Solution(NamedTuple):
@@ -199,12 +201,38 @@ def warm_start(prev: Trajectory, dt, params: NLPParams, structure: NLPStructure,
 
 
 def _direction(H, grad, reg):
+    """-|H|_reg^-1 grad: eigenvalues by magnitude, floored at reg * max|eigenvalue|.
+
+    reg = 1e-13 (~450 x the float64 epsilon, so a floored eigenvalue is still well above
+    eigh's rounding).  With large penalties (mu ~ 1e9-1e10, where warm-started fleets
+    with close encounters go) the largest eigenvalue is ~1e12, and the former 1e-10
+    floored the objective's own curvature: Newton degraded to linear convergence and
+    lanes ran to max_iters (bench, 100 robots: 1-4 such lanes per replan, none with
+    1e-12..1e-14, and 2x fewer iterations)."""
     w, V = jnp.linalg.eigh(H)
     wa = jnp.abs(w)
     floor = reg * jnp.max(wa) + 1e-300
     wm = jnp.maximum(wa, floor)
     d = -V @ ((V.T @ grad) / wm)
     return d
+
+
+def _next_trial(a, g_x: Multipliers, g_a: Multipliers, thr: Multipliers, overshoot):
+    """The next backtracking step after the trial at step a failed.
+
+    A constraint whose AL term is inactive at x (g_x >= thr = lam / mu) and active at
+    the trial (g_a < thr) crossed into its quadratic branch, where a large mu makes
+    L_A steep.  With g taken as linear along the step, the first such crossing is at
+    a r, r = min (g_x - thr) / (g_x - g_a); the next trial goes just past it
+    (overshoot r a, kept in [a / 1000, a / 2]), so that the constraint is active in the
+    next iteration's model.  Without a crossing: a / 2.  (Halving alone took 8-19
+    trials to cut such steps back: bench, 100 robots, warm replans with mu ~ 1e6-1e7.)
+    """
+    frac = jax.tree.map(
+        lambda gx, ga, t: jnp.where((gx >= t) & (ga < t), (gx - t) / jnp.maximum(gx - ga, 1e-300),
+                                    1.0), g_x, g_a, thr)
+    r = jnp.minimum(jnp.min(frac.collision, initial=1.0), jnp.min(frac.limits, initial=1.0))
+    return jnp.where(r < 1.0, jnp.clip(overshoot * r, 1e-3, 0.5), 0.5) * a
 
 
 class _Lane(NamedTuple):
@@ -289,13 +317,15 @@ def _step(st: _State, lane: _Lane, structure: NLPStructure, s: SolverSettings) -
         ok = jnp.isfinite(ft) & (ft <= f + s.armijo * (grp @ (xt - x)))
         return ok, gt
 
+    thr = jax.tree.map(lambda l: l / mu, mult)  # g < thr: the AL term is active
+
     def ls_cond(c):
         a, k, ok, _ = c
         return (~ok) & (k < s.max_backtracks)
 
     def ls_body(c):
-        a, k, _, _ = c
-        a = a * 0.5
+        a, k, _, gt = c
+        a = _next_trial(a, st.g, gt, thr, s.kink_overshoot)
         return (a, k + 1) + trial(a)
 
     a, k, ok, g_try = jax.lax.while_loop(ls_cond, ls_body,

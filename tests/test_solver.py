@@ -211,3 +211,58 @@ def test_solution_is_differentiable_in_the_weights():
         fd = (f(*up, sol.x)[0] - f(*dn, sol.x)[0]) / (2 * h)
         assert float(jnp.max(jnp.abs(fd))) > 1e-4  # the weight matters here
         np.testing.assert_allclose(jac[k], fd, rtol=1e-5, atol=1e-8)
+
+
+def test_backtracking_goes_just_past_the_first_al_branch_crossing():
+    """_next_trial: after a failed trial at step a, the constraint that was inactive at
+    x (g >= lam / mu) and is active at the trial bounds the next step: with g linear
+    along the step, the next trial lies kink_overshoot past its crossing; constraints
+    already active at x, or still inactive at the trial, do not count; no crossing:
+    a / 2; the step shrinks by at least 2 and at most 1000 per trial."""
+    M = costs.Multipliers
+
+    def nxt(a, gx, ga, lam, mu=10.0, over=1.1):
+        gx, ga, lam = (M(jnp.asarray(v, float).reshape(1, -1), jnp.ones((1, 3)))
+                       for v in (gx, ga, lam))
+        thr = jax.tree.map(lambda v: v / mu, lam)
+        return float(solver._next_trial(a, gx, ga, thr, over))
+
+    # g(a) = 1 - 4 a crosses 0 at a = 0.25; the other constraint (0.5 -> 0.4) does not
+    assert nxt(1.0, [1.0, 0.5], [-3.0, 0.4], [0.0, 0.0]) == pytest.approx(1.1 * 0.25)
+    # the threshold is lam / mu: g(a) = 1 - 4 a crosses 0.5 (lam 5, mu 10) at 0.125
+    assert nxt(0.8, [1.0], [1.0 - 4 * 0.8], [5.0]) == pytest.approx(1.1 * 0.125)
+    # the earliest of two crossings; an already active constraint (-0.1) is ignored
+    assert nxt(1.0, [1.0, 2.0, -0.1], [-3.0, -2.0, -5.0], [0, 0, 0]) == pytest.approx(0.275)
+    assert nxt(1.0, [1.0, 0.5], [0.9, 0.4], [0.0, 0.0]) == 0.5  # no crossing: halve
+    assert nxt(0.5, [1e-9], [-1.0], [0.0]) == pytest.approx(0.5e-3)  # at most / 1000
+    assert nxt(1.0, [1.0], [-0.01], [0.0]) == 0.5  # at least / 2
+    assert nxt(1.0, [1.0], [jnp.nan], [0.0]) == 0.5  # a non-finite trial: halve
+
+
+def _load_lane(path):
+    z = np.load(path)
+    g = lambda k: jnp.asarray(z[k])
+    sub = lambda cls, pre: cls(*(g(f"{pre}.{f}") for f in cls._fields))
+    own = {f: g(f"P.{f}") for f in costs.NLPParams._fields
+           if f not in ("others", "weights", "limits")}
+    P = costs.NLPParams(**own, others=sub(Trajectory, "P.others"),
+                        weights=sub(costs.Weights, "P.weights"),
+                        limits=sub(costs.Limits, "P.limits"))
+    return P, g("x0"), sub(costs.Multipliers, "m"), g("mu")
+
+
+def test_warm_replan_with_a_large_penalty_converges():
+    """A warm replan of one robot of the 100-robot bench fleet (`jaxplan bench solver`,
+    all 99 others, its AL warm start carrying mu = 1e10).  With the former eigenvalue
+    floor (reg = 1e-10 x the largest eigenvalue, ~1e12 here) the floor swamped the
+    objective's own curvature: Newton fell to linear convergence and the lane ran to
+    max_iters (MAX_ITERS after 60).  With reg = 1e-13 it converges in a few iterations."""
+    from pathlib import Path
+
+    P, x0, m, mu = _load_lane(Path(__file__).parent / "data" / "warm_lane_large_penalty.npz")
+    assert float(mu) == 1e10 and int(P.other_mask.sum()) == 99
+    sol = jax.device_get(jax.jit(lambda P, x0, m, mu: solver.solve(P, x0, NLPStructure(),
+                                                                   multipliers=m, penalty=mu))(
+        P, x0, m, mu))
+    assert sol.status == solver.CONVERGED and sol.iterations <= 15, (sol.status, sol.iterations)
+    assert sol.ineq_violation <= 1e-8 and np.isfinite(sol.objective)
