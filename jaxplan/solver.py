@@ -108,7 +108,8 @@ class _State(NamedTuple):
     x: jax.Array
     mult: Multipliers
     mu: jax.Array
-    g: Multipliers
+    g: Multipliers  # the constraints at x
+    f: jax.Array  # L_A at x with (mult, mu)
     viol_ref: jax.Array
     pending: jax.Array
     it: jax.Array
@@ -237,10 +238,13 @@ def _next_trial(a, g_x: Multipliers, g_a: Multipliers, thr: Multipliers, oversho
 
 class _Lane(NamedTuple):
     """What a lane's iterations read besides its state: the sanitized params and the
-    bound on tau (the end-kind constants are recomputed from params.rest: cheap)."""
+    bound on tau (the end-kind constants are recomputed from params.rest: cheap); the
+    objective and the violation at x0 (reported where a lane ends NON_FINITE)."""
 
     params: NLPParams
     tau_min: jax.Array
+    objective0: jax.Array
+    viol0: jax.Array
 
 
 def _prepare(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
@@ -258,11 +262,28 @@ def _prepare(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
     mult0 = jax.tree.map(lambda a: jnp.where(jnp.isfinite(a), jnp.maximum(a, 0.0), 0.0), mult0)
     mu0 = jnp.asarray(s.mu0 if penalty is None else penalty, jnp.float64)
     mu0 = jnp.where(jnp.isfinite(mu0) & (mu0 > 0), mu0, s.mu0)
-    g0 = costs._constraints(x0, params, structure, kc)
-    st0 = _State(x0, mult0, mu0, g0, jnp.asarray(jnp.inf), jnp.asarray(False),
+    f0, g0 = costs.merit_and_constraints(x0, params, structure, kc, mult0, mu0)
+    st0 = _State(x0, mult0, mu0, g0, f0, jnp.asarray(jnp.inf), jnp.asarray(False),
                  jnp.asarray(0, jnp.int32),
                  jnp.asarray(False), jnp.asarray(False), jnp.asarray(jnp.inf), jnp.asarray(jnp.inf))
-    return _Lane(params, tau_min), st0, finite_in, x0
+    lane = _Lane(params, tau_min, _objective(f0, g0, mult0, mu0, params, structure),
+                 _max_violation(g0))
+    return lane, st0, finite_in, x0
+
+
+def _objective(f, g: Multipliers, mult: Multipliers, mu, params: NLPParams,
+               structure: NLPStructure):
+    """The objective at a point from its L_A value f and constraints g there: f less
+    the AL terms (as costs._terms adds them), so that results need no second pass over
+    the other robots."""
+    al = 0.0
+    if structure.collision_constraints:
+        _, _, _, on = costs._col_samples(params, structure)
+        use = params.other_mask[None, :] & on[:, None]
+        al = al + jnp.sum(jnp.where(use, costs.al_term(g.collision, mult.collision, mu), 0.0))
+    if structure.hard_limits:
+        al = al + jnp.sum(costs.al_term(g.limits, mult.limits, mu))
+    return f - al
 
 
 def _active(st: _State, s: SolverSettings):
@@ -272,7 +293,7 @@ def _active(st: _State, s: SolverSettings):
 
 def _step(st: _State, lane: _Lane, structure: NLPStructure, s: SolverSettings) -> _State:
     """One solver iteration of one lane (module doc); a done lane is returned as is."""
-    params, tau_min = lane
+    params, tau_min = lane.params, lane.tau_min
     kc = costs.kind_constants(params.rest, structure)
     n = st.x.shape[0]
     # 1. multiplier / penalty update (inner problem nearly solved at st.x)
@@ -315,32 +336,37 @@ def _step(st: _State, lane: _Lane, structure: NLPStructure, s: SolverSettings) -
         xt = point(a)
         ft, gt = costs.merit_and_constraints(xt, params, structure, kc, mult, mu)
         ok = jnp.isfinite(ft) & (ft <= f + s.armijo * (grp @ (xt - x)))
-        return ok, gt
+        return ok, ft, gt
 
     thr = jax.tree.map(lambda l: l / mu, mult)  # g < thr: the AL term is active
 
     def ls_cond(c):
-        a, k, ok, _ = c
+        a, k, ok, _, _ = c
         return (~ok) & (k < s.max_backtracks)
 
     def ls_body(c):
-        a, k, _, gt = c
-        a = _next_trial(a, st.g, gt, thr, s.kink_overshoot)
+        a, k, _, _, gt = c
+        a = jnp.where(k < 0, 1.0, _next_trial(a, st.g, gt, thr, s.kink_overshoot))
         return (a, k + 1) + trial(a)
 
-    a, k, ok, g_try = jax.lax.while_loop(ls_cond, ls_body,
-                                         (jnp.asarray(1.0), 0) + trial(jnp.asarray(1.0)))
+    # k = -1: no trial yet.  A lane that converged at x takes none (its step is not
+    # used), so a pool step in which every lane converges skips the trial.
+    a, k, ok, f_try, g_try = jax.lax.while_loop(
+        ls_cond, ls_body, (jnp.asarray(1.0), -1, conv, f, st.g))
+    ok = ok & ~conv
     x_new = jnp.where(ok, point(a), x)
-    # st.g holds the constraints at st.x (invariant), g_try those at the accepted point
+    # st.g / st.f hold the constraints and L_A at st.x (invariant), g_try / f_try those
+    # at the accepted point
     g_new = _tree_where(ok, g_try, st.g)
+    f_new = jnp.where(ok, f_try, f)
     pending = (theta <= s.inner_tol * scale) | ~ok
     kkt = jnp.max(jnp.abs(grp))
-    new = _State(x_new, mult, mu, g_new, viol_ref, pending, st.it + 1, conv | ~finite,
+    new = _State(x_new, mult, mu, g_new, f_new, viol_ref, pending, st.it + 1, conv | ~finite,
                  ~finite, kkt, theta)
     # a converged lane keeps x (its tests were evaluated there)
     keep = conv | ~finite
     new = new._replace(x=jnp.where(keep, x, x_new), g=_tree_where(keep, st.g, g_new),
-                       it=jnp.where(keep, st.it, st.it + 1))
+                       f=jnp.where(keep, f, f_new), it=jnp.where(keep, st.it, st.it + 1))
     return _tree_where(st.done, st, new)
 
 
@@ -348,10 +374,10 @@ def _finish(st: _State, lane: _Lane, finite_in, x0, structure: NLPStructure,
             s: SolverSettings) -> Solution:
     """The Solution of a lane whose iterations ended (state ``st``)."""
     params = lane.params
-    kc = costs.kind_constants(params.rest, structure)
     bad = st.bad | ~finite_in | ~jnp.all(jnp.isfinite(st.x))
     x = jnp.where(bad, x0, st.x)
-    viol = _max_violation(costs._constraints(x, params, structure, kc))
+    # st.g and st.f are the constraints and L_A at st.x: no second pass over the others
+    viol = jnp.where(bad, lane.viol0, _max_violation(st.g))
     conv = st.done & ~bad
     status = jnp.where(bad, NON_FINITE, jnp.where(conv, CONVERGED,
                        jnp.where(viol > s.tol_feasibility, INFEASIBLE, MAX_ITERS))
@@ -360,7 +386,7 @@ def _finish(st: _State, lane: _Lane, finite_in, x0, structure: NLPStructure,
     traj_ok = jnp.all(jnp.isfinite(traj.coeffs)) & jnp.all(jnp.isfinite(traj.breaks))
     hold = Trajectory.hold(params.p0, structure.degree, structure.segments)
     traj = _tree_where(traj_ok, traj, hold._replace(coast=traj.coast))
-    obj = costs._terms(x, params, structure, kc, None, 1.0)
+    obj = jnp.where(bad, lane.objective0, _objective(st.f, st.g, st.mult, st.mu, params, structure))
     eq = costs.equality_residual(x, params, structure)
     no_nan = lambda a: jnp.where(jnp.isnan(a), jnp.inf, a)
     return Solution(

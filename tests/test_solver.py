@@ -52,6 +52,15 @@ def test_random_nlps_converge_and_satisfy_constraints(mode):
     assert np.sum(~conv) <= 1, (mode, sol.status)
     assert np.max(sol.eq_violation) <= 1e-8
     assert np.all(np.isfinite(sol.traj.coeffs))
+    # the reported objective and violation (formed from the solver's last L_A value and
+    # constraints) equal a fresh evaluation at the solution
+    x = jnp.asarray(sol.x)
+    obj = jax.vmap(lambda x, p: costs.objective(x, p, st))(x, P)
+    np.testing.assert_allclose(sol.objective, obj, rtol=1e-9, atol=1e-9)
+    g = jax.vmap(lambda x, p: costs.constraints(x, p, st))(x, P)
+    viol = np.maximum(np.max(-np.asarray(g.collision), axis=(1, 2), initial=0.0),
+                      np.max(-np.asarray(g.limits), axis=(1, 2), initial=0.0))
+    np.testing.assert_allclose(sol.ineq_violation, viol, rtol=1e-9, atol=1e-12)
     if st.collision_constraints:
         g = jax.vmap(lambda x, p: costs.constraints(x, p, st).collision)(jnp.asarray(sol.x), P)
         rho = (P.radius[:, None] + P.other_radius)[:, None, :]
