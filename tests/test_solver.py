@@ -131,6 +131,18 @@ def test_pool_size_does_not_change_results():
     one = jax.device_get(_one(ps[5], jnp.full(S1.n_x, jnp.nan)))
     np.testing.assert_allclose(one.x, ref.x[5], rtol=1e-9, atol=1e-9)
     assert one.iterations == ref.iterations[5] and ref.status[5] == solver.CONVERGED
+    # a batch of <= LOCKSTEP_MAX lanes starts in lockstep, then hands its stragglers to
+    # the slots: the same lanes again
+    n = 20
+    assert n <= solver.LOCKSTEP_MAX < B
+    sub = lambda t: jax.tree.map(lambda a: a[:n], t)
+    sol = jax.device_get(solver.solve_batch(sub(P), x0[:n], S1, pool=3))
+    assert max(sol.iterations) > 2 * np.median(sol.iterations)  # stragglers for the slots
+    np.testing.assert_array_equal(sol.status, ref.status[:n])
+    np.testing.assert_array_equal(sol.iterations, ref.iterations[:n])
+    c = conv[:n]
+    for a, b in zip(jax.tree.leaves(sol), jax.tree.leaves(sub(ref)), strict=True):
+        np.testing.assert_allclose(np.asarray(a)[c], np.asarray(b)[c], rtol=1e-9, atol=1e-9)
 
 
 def test_changing_weights_does_not_recompile():
