@@ -86,7 +86,7 @@ class PlannerStructure:
     NLP holds only the K others that come nearest to its own closed-form prediction
     (:func:`nearest_neighbors`); the NLP's cost then grows with K, not with the fleet.
     solver_pool: robots' NLPs stepped at once (:func:`jaxplan.solver.solve_lanes`);
-    0 = :func:`jaxplan.solver.default_pool` of the fleet size.
+    0 = :func:`jaxplan.solver.default_pool` of the fleet size and of the others per NLP.
     """
 
     nlp: NLPStructure = field(default_factory=NLPStructure)
@@ -312,7 +312,7 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     # x0 is finite (initial_guess is finite for any input): no fallback guess needed
     # a pool of lanes: the replan costs about the sum of the robots' iterations, not M
     # times the largest (a 20-robot random-box run: 6.9 s instead of 22.8 s on 2 cores)
-    pool = structure.solver_pool or slv.default_pool(M)
+    pool = structure.solver_pool or slv.default_pool(M, n_others=params.other_mask.shape[-1])
     sol = slv.solve_lanes(params, x0, nlp, settings, mult, pen, x_fallback=x0, pool=pool)
 
     finite = jnp.all(jnp.isfinite(sol.traj.coeffs), axis=(-1, -2, -3)) & jnp.all(

@@ -519,23 +519,36 @@ def _pooled(st_all: _State, lane_all: _Lane, step, C: int, s: SolverSettings) ->
 
 LOCKSTEP_MAX = 32  # batches up to this size start in lockstep (_pooled)
 POOL_CPU = 2  # lanes per step on a CPU (measured on 2 cores: see default_pool)
+POOL_CPU_FEW = 4  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
+FEW_OTHERS = 16  # "few": at most this many other robots per NLP
 
 
-def default_pool(batch: int, backend: str | None = None) -> int:
-    """The pool size :func:`solve_batch` and the planner use: POOL_CPU (2) lanes on a
-    CPU, B elsewhere.
+def default_pool(batch: int, backend: str | None = None, n_others: int | None = None) -> int:
+    """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (4)
+    lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
+    robots each (``n_others``), else POOL_CPU (2); B elsewhere.
 
-    Measured on a 2-core CPU (`jaxplan bench solver` NLPs, warm replans with the AL
-    warm start): 100 robots with 16 neighbours 62 ms with pool 2, 78 with 1, 92 with 4,
-    166 with 13; with all 99 others 353 ms with 2, 377 with 4, 597 with 13; the 10-robot
-    replan and the 64 x 10 batch did not depend on the pool beyond the noise (pools 1-10
-    and 2-32).  Larger pools lose to the lockstep line search (every lane in a step
-    waits for the slowest backtracking) and to caches once the per-pair arrays grow.
-    Small batches (<= LOCKSTEP_MAX) start in lockstep anyway (:func:`_pooled`): that
-    made warm 10-, 20- and 30-robot replans 1.22x, 1.25x and 1.5x faster than pool 2
-    alone (interleaved A/B, bench fleets)."""
+    Measured on a 2-core CPU (`jaxplan bench solver` NLPs, interleaved in one process):
+    * 64 x 10 cold batch (640 NLPs, 9 others each): 1014 ms with pool 2, 855 with 3,
+      765 with 4, 780 with 6, 794 with 8; its first 64 NLPs 101 / 94 / 88 / 92 ms with
+      2 / 3 / 4 / 6, its first 320 474 / 451 / 414 / 440 ms.  With few others a lane's
+      step is cheap, and a step's fixed cost (~0.13 ms) is shared by more lanes.
+    * 100 robots with 16 neighbours, warm and cold: no difference between 2, 4 and 6
+      beyond the noise; with all 99 others mixed (warm replans 174 / 158 ms with 2 / 4,
+      other warm replans 206 / 272 ms).  Earlier (before the derivatives of 2026-12-01):
+      100 robots with 16 neighbours 62 ms with pool 2, 78 with 1, 92 with 4, 166 with
+      13; with all 99 others 353 ms with 2, 377 with 4, 597 with 13.  Larger pools lose
+      to the lockstep line search (every lane in a step waits for the slowest
+      backtracking) and to caches once the per-pair arrays grow.
+    Small batches (<= LOCKSTEP_MAX) start in lockstep (:func:`_pooled`): that made warm
+    10-, 20- and 30-robot replans 1.22x, 1.25x and 1.5x faster than pool 2 alone
+    (interleaved A/B, bench fleets); their pool (the stragglers') did not matter between
+    2 and 4."""
     backend = backend or jax.default_backend()
-    return max(1, min(batch, POOL_CPU)) if backend == "cpu" else batch
+    if backend != "cpu":
+        return batch
+    few = n_others is not None and n_others <= FEW_OTHERS and batch > LOCKSTEP_MAX
+    return max(1, min(batch, POOL_CPU_FEW if few else POOL_CPU))
 
 
 _STRONG_DTYPES = (jnp.dtype(jnp.float64), jnp.dtype(jnp.int32), jnp.dtype(bool))
@@ -580,8 +593,10 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
     axes), jitted; ``settings`` is shared.  Weights, limits and settings are traced: new
     values (Python scalars or arrays) reuse the compiled function (``_solve_batch_jit``).
     ``pool``: lanes stepped at a time (:func:`solve_lanes`; default :func:`default_pool`
-    of the number of problems); the results do not depend on it."""
-    pool = default_pool(math.prod(x0.shape[:-1])) if pool is None else pool
+    of the number of problems and of other robots per problem); the results do not
+    depend on it."""
+    if pool is None:
+        pool = default_pool(math.prod(x0.shape[:-1]), n_others=params.other_mask.shape[-1])
     return _solve_batch_jit(_strong(params), _strong(x0), structure, _strong(settings),
                             None if multipliers is None else _strong(multipliers),
                             None if penalty is None else _strong(penalty), pool)

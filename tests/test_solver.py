@@ -145,6 +145,20 @@ def test_pool_size_does_not_change_results():
         np.testing.assert_allclose(np.asarray(a)[c], np.asarray(b)[c], rtol=1e-9, atol=1e-9)
 
 
+def test_default_pool_follows_the_batch_and_its_others():
+    """The automatic pool (measured rule, solver.default_pool): 4 lanes on a CPU for a
+    large batch of NLPs with few others each, 2 otherwise, the whole batch elsewhere;
+    never more lanes than the batch has."""
+    L, F = solver.LOCKSTEP_MAX, solver.FEW_OTHERS
+    assert solver.default_pool(640, "cpu", n_others=10) == solver.POOL_CPU_FEW == 4
+    assert solver.default_pool(L + 1, "cpu", n_others=F) == 4
+    assert solver.default_pool(L, "cpu", n_others=10) == solver.POOL_CPU == 2
+    assert solver.default_pool(640, "cpu", n_others=F + 1) == 2
+    assert solver.default_pool(640, "cpu") == 2
+    assert solver.default_pool(1, "cpu", n_others=1) == 1
+    assert solver.default_pool(640, "gpu", n_others=10) == 640
+
+
 def test_changing_weights_does_not_recompile():
     ps, P = _s1_batch()
     x0 = solver.initial_guess_batch(P, S1)
