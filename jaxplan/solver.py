@@ -526,7 +526,8 @@ FEW_OTHERS = 16  # "few": at most this many other robots per NLP
 def default_pool(batch: int, backend: str | None = None, n_others: int | None = None) -> int:
     """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (4)
     lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
-    robots each (``n_others``), else POOL_CPU (2); B elsewhere.
+    robots each (``n_others``: the other-robot slots of an NLP, masked ones included),
+    else POOL_CPU (2); B elsewhere.
 
     Measured on a 2-core CPU (`jaxplan bench solver` NLPs, interleaved in one process):
     * 64 x 10 cold batch (640 NLPs, 9 others each): 1014 ms with pool 2, 855 with 3,
