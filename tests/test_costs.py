@@ -47,6 +47,31 @@ def test_structured_derivatives_match_autodiff(st, rest):
     np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
 
 
+@pytest.mark.parametrize("rest", [False, True])
+@pytest.mark.parametrize("q_lim", [0.5, 0.0])
+def test_limit_derivatives_match_autodiff_where_the_limits_bind(rest, q_lim):
+    """A fast plan (T = 0.8 s for a few metres): the hard-limit AL terms are active on
+    their quadratic branch and the soft limits far up their exponential, the branches
+    the test above (slow plans) does not reach.  With q_lim = 0 the hard limits alone
+    (the soft ones would swamp them in the tolerance)."""
+    st = NLPStructure(collision="barrier+constraint", segments=2, hard_limits=True)
+    rng = np.random.default_rng(3)
+    p = random_problem(rng, n_others=4, rest=rest, w=weights(q_lim=q_lim))
+    kc = costs.kind_constants(p.rest, st)
+    b = costs.basis(st)
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 5, (st.n_col, 10))),
+                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
+    x = _x(rng, st, 0.8, 0.05)
+    g_lim = costs.constraints(x, p, st).limits
+    assert float(jnp.mean(mult.limits - 30.0 * g_lim > 0)) > 0.3  # active AL branch
+    f = lambda xx: costs.merit(xx, p, st, kc, mult, 30.0)
+    v, g, H = jax.jit(lambda xx: costs.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
+    vr, gr, Hr = jax.jit(lambda xx: (f(xx), jax.grad(f)(xx), jax.hessian(f)(xx)))(x)
+    np.testing.assert_allclose(v, vr, rtol=1e-12)
+    np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
+    np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
+
+
 @pytest.mark.parametrize("st,rest", CASES)
 def test_equalities_hold_by_construction(st, rest):
     rng = np.random.default_rng(1)
