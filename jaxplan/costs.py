@@ -709,24 +709,33 @@ def _vgh(f, y, *args):
     return v, g, H
 
 
+def _feature_jacobians(feat, x):
+    """J = dy/dx and dJ/dtau of the per-sample features y = feat(x) (K, m), samples last:
+    (m, n, K) each, in one forward-over-forward pass (y is linear in z for a fixed tau,
+    so the features' second derivatives all lie in the tau row / column)."""
+    et = jnp.zeros(x.shape[0], x.dtype).at[-1].set(1.0)
+    J, dJ = jax.jvp(jax.jacfwd(feat), (x,), (et,))  # (K, m, n) each
+    return jnp.moveaxis(J, 0, -1), jnp.moveaxis(dJ, 0, -1)
+
+
+def _add_tau_curvature(H, u):
+    """H plus the features' own curvature u = sum_k G_k . d2y_k/dx dtau (n,), which lies
+    in the tau row and column."""
+    return H.at[:, -1].add(u).at[-1, :].add(u).at[-1, -1].add(-u[-1])
+
+
 def _assemble(feat, x, val, G, Hl):
     """Chain rule through the per-sample features y = feat(x) (K, m): the local value
     ``val`` (summed), gradients G (m, K) and Hessians Hl (m, m, K), samples last."""
-    n = x.shape[0]
-    et = jnp.zeros(n, x.dtype).at[-1].set(1.0)
-    # J = dy/dx and dJ/dtau in one forward-over-forward pass (y is linear in z for a
-    # fixed tau, so the features' second derivatives all lie in the tau row / column)
-    J, dJ = jax.jvp(jax.jacfwd(feat), (x,), (et,))  # (K, m, n) each
+    Jt, dJt = _feature_jacobians(feat, x)
     # sum_k J_k^T Hl_k J_k elementwise with the samples last (the long axis): under vmap
     # (2-64 lanes) XLA's CPU code for the batched small matrix products was ~1.15x slower
     # per derivative call (one unbatched call is ~10% faster with them; not a hot path)
-    Jt = jnp.moveaxis(J, 0, -1)  # (m, n, K)
     HJ = jnp.sum(Hl[:, :, None, :] * Jt[None], axis=1)  # (m, n, K)
     H = jnp.sum(Jt[:, :, None, :] * HJ[:, None, :, :], axis=(0, 3))
     grad = jnp.sum(G[:, None, :] * Jt, axis=(0, 2))
-    u = jnp.sum(G[:, None, :] * jnp.moveaxis(dJ, 0, -1), axis=(0, 2))  # sum_k G_k . d2y_k/dx dtau
-    H = H.at[:, -1].add(u).at[-1, :].add(u).at[-1, -1].add(-u[-1])
-    return jnp.sum(val), grad, H
+    u = jnp.sum(G[:, None, :] * dJt, axis=(0, 2))
+    return jnp.sum(val), grad, _add_tau_curvature(H, u)
 
 
 def _d012(fn, x):
@@ -814,9 +823,8 @@ def _limits_derivs(feat, x, w, lam, params, structure, mu, soft: bool):
     N = structure.n_dim
     lim = params.limits
     n = x.shape[0]
-    et = jnp.zeros(n, x.dtype).at[-1].set(1.0)
     y = feat(x)  # (K, 3N + 1)
-    J, dJ = jax.jvp(jax.jacfwd(feat), (x,), (et,))  # (K, 3N + 1, n) each
+    Jt, dJt = _feature_jacobians(feat, x)  # (3N + 1, n, K) each
     K = y.shape[0]
     Y = y[:, : 3 * N].T.reshape(3, N, K)  # rows: velocity, acceleration, jerk
     T = y[0, -1]
@@ -833,8 +841,6 @@ def _limits_derivs(feat, x, w, lam, params, structure, mu, soft: bool):
     bv, b1, b2 = b
     cd = T * a1 + b1
     cdd = T * a2 + b2
-    Jt = jnp.moveaxis(J, 0, -1)  # (3N + 1, n, K), samples last
-    dJt = jnp.moveaxis(dJ, 0, -1)
     JY = Jt[: 3 * N].reshape(3, N, n, K)
     q = jnp.sum(Y[:, :, None, :] * JY, axis=1)  # J_r^T Y_r: (3, n, K)
     avs = jnp.sum(av, axis=0)  # d value / dT per sample
@@ -849,8 +855,7 @@ def _limits_derivs(feat, x, w, lam, params, structure, mu, soft: bool):
     u = (jnp.sum((2.0 * cd)[:, None, None, :] * Y[:, :, None, :]
                  * dJt[: 3 * N].reshape(3, N, n, K), axis=(0, 1, 3))
          + jnp.sum(avs * dJt[-1], axis=-1))  # sum_k G_k . d2y_k/dx dtau
-    H = H.at[:, -1].add(u).at[-1, :].add(u).at[-1, -1].add(-u[-1])
-    return val, grad, H
+    return val, grad, _add_tau_curvature(H, u)
 
 
 def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
