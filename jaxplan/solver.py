@@ -201,6 +201,59 @@ def warm_start(prev: Trajectory, dt, params: NLPParams, structure: NLPStructure,
     return jnp.where(ok, x, fallback)
 
 
+# jaxlib 0.10's LAPACK kernels split a batch over XLA's CPU thread pool once it costs
+# batch * 5 n^3 >= 2e5 "FLOP" (eigh; jaxlib/cpu/lapack_kernels.cc, GetLapackBatchChunkSize)
+# and block a pool thread until the parts finish (ParallelBatchMap).  Two such
+# executions at once (two Python threads, or two CPU devices) can leave every pool
+# thread waiting: a deadlock at 0% CPU (seen: two threads solving two-segment NLPs).
+# So on a CPU _eigh never passes the kernel a batch that it would split.
+_LAPACK_SPLIT_COST = 200_000  # the kernel's kMinWorkPerTask
+_EIGH_COST = 5  # its cost_per_matrix of eigh, per n^3
+UNROLL_EIGH = 8  # _eigh: up to this many calls unrolled, more in a loop
+
+
+def eigh_chunk(n: int) -> int:
+    """The most n x n matrices one CPU eigh call takes without splitting its batch."""
+    return max(1, (_LAPACK_SPLIT_COST - 1) // (_EIGH_COST * n ** 3))
+
+
+@jax.custom_batching.custom_vmap
+def _eigh(H):
+    """(eigenvalues, eigenvectors) of the symmetric H (n, n) by jnp.linalg.eigh.
+
+    Under vmap on a CPU the batch goes to LAPACK in calls of at most eigh_chunk(n)
+    matrices, which the kernel runs on the calling thread (see _LAPACK_SPLIT_COST);
+    elsewhere (a GPU) as one batched call.  The results are those of the batched call:
+    LAPACK treats each matrix alone."""
+    return tuple(jnp.linalg.eigh(H))
+
+
+@_eigh.def_vmap
+def _eigh_vmap(axis_size, in_batched, H):
+    if not in_batched[0]:
+        return _eigh(H), (False, False)
+
+    def in_chunks(H):
+        k = eigh_chunk(H.shape[-1])
+        if k >= axis_size:
+            return tuple(jnp.linalg.eigh(H))
+        parts = -(-axis_size // k)
+        if parts <= UNROLL_EIGH:
+            w, V = zip(*(jnp.linalg.eigh(H[i:i + k]) for i in range(0, axis_size, k)),
+                       strict=True)
+            return jnp.concatenate(w), jnp.concatenate(V)
+        Hp = jnp.concatenate([H, jnp.broadcast_to(jnp.eye(H.shape[-1], dtype=H.dtype),
+                                                  (parts * k - axis_size,) + H.shape[1:])])
+        w, V = jax.lax.map(lambda h: tuple(jnp.linalg.eigh(h)),
+                           Hp.reshape((parts, k) + H.shape[1:]))
+        return (w.reshape((parts * k,) + w.shape[2:])[:axis_size],
+                V.reshape((parts * k,) + V.shape[2:])[:axis_size])
+
+    out = jax.lax.platform_dependent(H, cpu=in_chunks,
+                                     default=lambda H: tuple(jnp.linalg.eigh(H)))
+    return out, (True, True)
+
+
 def _direction(H, grad, reg):
     """-|H|_reg^-1 grad: eigenvalues by magnitude, floored at reg * max|eigenvalue|.
 
@@ -210,7 +263,7 @@ def _direction(H, grad, reg):
     floored the objective's own curvature: Newton degraded to linear convergence and
     lanes ran to max_iters (bench, 100 robots: 1-4 such lanes per replan, none with
     1e-12..1e-14, and 2x fewer iterations)."""
-    w, V = jnp.linalg.eigh(H)
+    w, V = _eigh(H)
     wa = jnp.abs(w)
     floor = reg * jnp.max(wa) + 1e-300
     wm = jnp.maximum(wa, floor)

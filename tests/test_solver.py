@@ -173,6 +173,89 @@ def test_changing_weights_does_not_recompile():
     assert solver._solve_batch_jit._cache_size() == before
 
 
+def _eigh_batches(lowered):
+    """(batch, n) of every LAPACK eigh call in a lowered program."""
+    import re
+    calls = [ln for ln in lowered.as_text().splitlines() if "lapack_dsyevd" in ln]
+    return [tuple(int(v) for v in re.search(r": \(tensor<(\d+)x(\d+)x\d+xf64>\)", ln).groups())
+            for ln in calls]
+
+
+def test_cpu_eigh_calls_never_split_their_batch():
+    """jaxlib 0.10's batched LAPACK eigh splits a batch of more than one matrix costing
+    batch x 5 n^3 >= 2e5 over XLA's CPU thread pool and blocks a pool thread while it
+    waits; two such solves at once deadlock (solver._eigh).  So every eigh call the
+    solver compiles for the CPU stays below that, and the chunked eigh returns what one
+    batched call returns."""
+    # a call of one matrix never splits, whatever its size
+    ok = lambda b, n: b == 1 or b * solver._EIGH_COST * n ** 3 < solver._LAPACK_SPLIT_COST
+    rng = np.random.default_rng(3)
+    for n in (7, 19, 37):
+        k = solver.eigh_chunk(n)
+        assert ok(k, n) and (k == 1 or not ok(k + 1, n))
+        for batch in (1, k, k + 1, 3 * k + 2, (solver.UNROLL_EIGH + 2) * k - 1):
+            A = rng.normal(size=(batch, n, n))
+            H = A + A.transpose(0, 2, 1)
+            f = jax.jit(jax.vmap(solver._eigh))
+            sizes = _eigh_batches(f.lower(H))
+            assert sizes and all(m == n and ok(b, n) for b, m in sizes), (n, batch, sizes)
+            w, V = f(H)
+            w0, V0 = jnp.linalg.eigh(H)
+            np.testing.assert_array_equal(w, w0)
+            np.testing.assert_array_equal(V, V0)
+    # the solver's own programs: a lockstep batch of two-segment NLPs and a pooled one
+    for st, n_lanes in ((S2["barrier"], 10), (S2["barrier"], B), (S1, B)):
+        _, P = _s1_batch()
+        sub = jax.tree.map(lambda a, n=n_lanes: a[:n], P)
+        x0 = jnp.zeros((n_lanes, st.n_x))
+        lowered = solver._solve_batch_jit.lower(
+            solver._strong(sub), x0, st, solver._strong(solver.SolverSettings()), None, None,
+            pool=solver.default_pool(n_lanes, n_others=P.other_mask.shape[-1]))
+        sizes = _eigh_batches(lowered)
+        assert sizes and all(m == st.n_x and ok(b, m) for b, m in sizes), (st, sizes)
+        if n_lanes == 10 and st.segments == 2:  # as one call this batch would split
+            assert not ok(n_lanes, st.n_x)
+
+
+_THREADS = """
+import threading, numpy as np, jax
+import jaxplan
+from jaxplan import solver
+from jaxplan.benchmarks.solver import random_problem, stack_params
+from jaxplan.costs import NLPStructure
+rng = np.random.default_rng(7)
+P = stack_params([random_problem(rng, n_others=int(rng.integers(2, 11)), rest=bool(i % 2))
+                  for i in range(40)])
+st = NLPStructure(collision="barrier+constraint", segments=2)
+x0 = np.asarray(solver.initial_guess_batch(P, st))
+half = [(jax.tree.map(lambda a: a[i:i + 20], P), x0[i:i + 20]) for i in (0, 20)]
+one = [np.asarray(solver.solve_batch(p, x, st).x) for p, x in half]
+for _ in range(3):
+    out = [None, None]
+    def work(j):
+        out[j] = np.asarray(solver.solve_batch(*half[j], st).x)
+    ts = [threading.Thread(target=work, args=(j,)) for j in (0, 1)]
+    [t.start() for t in ts]
+    [t.join() for t in ts]
+    assert all(np.array_equal(a, b) for a, b in zip(out, one))
+print("ok")
+"""
+
+
+def test_two_threads_solving_at_once_do_not_deadlock(tmp_path):
+    """Two Python threads each solve a batch of two-segment NLPs at the same time (in a
+    child process, under a time limit): before solver._eigh this hung at 0% CPU in 6
+    of 7 tries (the LAPACK batch split above).  Same results as one at a time."""
+    import subprocess
+    import sys
+
+    from tests._proc import ROOT, child_env
+
+    r = subprocess.run([sys.executable, "-c", _THREADS], env=child_env(tmp_path / "cache"),
+                       cwd=ROOT, capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-3000:]
+
+
 def _parked(rest_structure):
     """Rest-to-rest 8 m along x; a robot parked (hold) 0.1 m off the path at its middle."""
     rng = np.random.default_rng(0)
