@@ -83,7 +83,8 @@ def main(argv=None) -> int:
     ap.add_argument("study", choices=("collision", "faults"))
     ap.add_argument("--seeds", type=int, default=20, help="seeds per cell (default 20)")
     ap.add_argument("--out", type=Path, default=Path("sweeps/studies"))
-    ap.add_argument("--batch", type=int, default=1, help="runs per compiled batch (default 1)")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="runs per compiled batch (default: jaxplan.sweep's, one per CPU device)")
     ap.add_argument("--fleets", nargs="+", choices=tuple(FLEETS), default=tuple(FLEETS))
     ap.add_argument("--only", nargs="+", help="only these settings (mode or fault names)")
     a = ap.parse_args(argv)

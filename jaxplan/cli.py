@@ -42,7 +42,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, default=None,
                    help="sweep directory (default: sweeps/<name>)")
     s.add_argument("--batch", type=int, default=None,
-                   help="runs per batched computation (default: 1 on a CPU, 27 on a GPU)")
+                   help="runs per batched computation (default: one per CPU device on a CPU, "
+                        "split over the devices; 27 on a GPU)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     pl = sub.add_parser("plot", help="(re)draw a run directory's figures")
     pl.add_argument("run_dir", type=Path)

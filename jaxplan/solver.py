@@ -629,31 +629,87 @@ def _strong(tree):
     return jax.tree.map(f, tree)
 
 
-@functools.partial(jax.jit, static_argnames=("structure", "pool"))
-def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool):
+def default_shards(batch: int, backend: str | None = None) -> int:
+    """How many devices :func:`solve_batch` splits a batch of ``batch`` NLPs over: on a
+    CPU with several devices (``jax.devices("cpu")``; jaxplan makes one per core, see
+    :mod:`jaxplan`), all of them for a batch of more than LOCKSTEP_MAX NLPs, else 1.
+    Elsewhere 1 (a GPU steps all lanes of a batch at once).
+
+    Measured on a 2-core CPU (2 devices against 1, the `jaxplan bench solver` NLPs,
+    medians of 5; 2026-12-01, after _eigh): in one process the 64 x 10 cold batch 1.46x
+    faster, its first 64 NLPs 1.37x, 100 robots with 16 neighbours 1.48x warm and 1.63x
+    cold, with all 99 others 1.27x warm; in separate processes (JAXPLAN_CPU_DEVICES=1
+    against the default, twice) the batch 1.46x / 1.22x, 100 cold robots with 16
+    neighbours 2.4x / 1.5x, 100 warm robots with all others 1.50x / 1.56x.  Warm
+    10-robot replans stay on one device (split: 0.75x, too little work per device).
+    One XLA program on a CPU runs its kernels one after another; two devices run their
+    halves side by side.  (Before _eigh, two devices could deadlock in LAPACK.)"""
+    backend = backend or jax.default_backend()
+    if backend != "cpu" or batch <= LOCKSTEP_MAX:
+        return 1
+    return max(1, min(len(jax.devices("cpu")), batch))
+
+
+def shard_lanes(fn, args, shards: int):
+    """fn(*args) with every leaf's leading (lane) axis split over ``shards`` CPU devices
+    (shard_map: each device runs fn on its own lanes, its own loops; fn's outputs carry
+    the lane axis first); the lanes are padded to a multiple of ``shards`` by repeating
+    the last (the copies are dropped).  Call it under jit."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    if shards == 1:
+        return fn(*args)
+    B = jax.tree.leaves(args)[0].shape[0]
+    pad = (-B) % shards
+    mesh = Mesh(np.asarray(jax.devices("cpu")[:shards]), ("lanes",))
+    # inputs and outputs are held whole on every device, so that the caller's program
+    # around this is not partitioned over the lanes (XLA's propagation of the split into
+    # it put collectives inside its loops and conditionals, and a replan hung)
+    rep = NamedSharding(mesh, PartitionSpec())
+    whole = lambda t: jax.tree.map(lambda a: jax.lax.with_sharding_constraint(a, rep), t)
+    padded = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]),
+                          whole(args))
+    out = jax.shard_map(lambda a: fn(*a), mesh=mesh, in_specs=(PartitionSpec("lanes"),),
+                        out_specs=PartitionSpec("lanes"), check_vma=False)(padded)
+    return whole(jax.tree.map(lambda a: a[:B], out))
+
+
+@functools.partial(jax.jit, static_argnames=("structure", "pool", "shards"))
+def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool, shards=1):
     lead = x0.shape[:-1]
     flat = lambda t: None if t is None else jax.tree.map(
         lambda a: a.reshape((-1,) + a.shape[len(lead):]), t)
-    sol = solve_lanes(flat(params), flat(x0), structure, settings, flat(multipliers),
-                      flat(penalty), pool=pool)
+    lanes = lambda p, x, m, u: solve_lanes(p, x, structure, settings, m, u, pool=pool)
+    args = (flat(params), flat(x0), flat(multipliers), flat(penalty))
+    sol = lanes(*args) if shards == 1 else shard_lanes(lanes, args, shards)
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), sol)
 
 
 def solve_batch(params: NLPParams, x0, structure: NLPStructure,
                 settings: SolverSettings = SolverSettings(),
                 multipliers: Multipliers | None = None, penalty=None,
-                pool: int | None = None) -> Solution:
+                pool: int | None = None, shards: int | None = None) -> Solution:
     """:func:`solve` over all leading axes of x0 (..., n_x) and params (same leading
     axes), jitted; ``settings`` is shared.  Weights, limits and settings are traced: new
     values (Python scalars or arrays) reuse the compiled function (``_solve_batch_jit``).
-    ``pool``: lanes stepped at a time (:func:`solve_lanes`; default :func:`default_pool`
-    of the number of problems and of other robots per problem); the results do not
-    depend on it."""
+    ``shards``: CPU devices the problems are split over (default :func:`default_shards`
+    of the number of problems; at most ``len(jax.devices("cpu"))``).  ``pool``: lanes
+    stepped at a time on each (:func:`solve_lanes`; default :func:`default_pool` of the
+    problems per shard and of the other robots per problem).  Each problem takes the
+    same iterations whatever the pool and shards; with shards the compiled code differs,
+    so results can differ by rounding."""
+    B = math.prod(x0.shape[:-1])
+    if shards is None:
+        shards = default_shards(B)
+    n_cpu = len(jax.devices("cpu"))
+    if not 1 <= int(shards) <= n_cpu:
+        raise ValueError(f"shards = {shards}: expected 1 .. {n_cpu} (the CPU devices)")
+    shards = min(int(shards), max(B, 1))
     if pool is None:
-        pool = default_pool(math.prod(x0.shape[:-1]), n_others=params.other_mask.shape[-1])
+        pool = default_pool(-(-B // shards), n_others=params.other_mask.shape[-1])
     return _solve_batch_jit(_strong(params), _strong(x0), structure, _strong(settings),
                             None if multipliers is None else _strong(multipliers),
-                            None if penalty is None else _strong(penalty), pool)
+                            None if penalty is None else _strong(penalty), pool, shards)
 
 
 @functools.partial(jax.jit, static_argnames=("structure",))

@@ -14,15 +14,18 @@ the scenario (the paper scenarios' jitter, the generators' draws); every run las
 ``sim.duration_s`` under the ideal backend.
 
 Batches.  The grid is cut into batches of ``batch_size`` runs (default
-:data:`DEFAULT_BATCH` on an accelerator, :data:`DEFAULT_BATCH_CPU` on a CPU, or the
-environment variable ``JAXPLAN_SWEEP_BATCH``); one batch
+:data:`DEFAULT_BATCH` on an accelerator, :data:`DEFAULT_BATCH_CPU` per CPU device on a
+CPU, or the environment variable ``JAXPLAN_SWEEP_BATCH``); one batch
 is one call of one compiled program: :func:`jaxplan.rollout.rollout_batch`, vmapped
 over runs, with the weights (and every other fleet parameter) as traced batched
-inputs.  The last batch is padded by repeating its last run (the duplicates are
-dropped), so every batch has the same shape and the planner compiles once per shape
-group.  Scenarios of different robot counts share one shape: smaller fleets are padded
-to the largest with masked robots (``FleetParams.robot_mask``) parked far away, which
-the planner never plans for and no robot sees.  Scenarios that differ in the number of
+inputs.  On a CPU with several devices (jaxplan makes one per core: :mod:`jaxplan`) a
+batch whose size is a multiple of their number is split over them, each device running
+its own runs side by side (:func:`jaxplan.solver.shard_lanes`).  The last batch is
+padded by repeating its last run (the duplicates are dropped), so every batch has the
+same shape and the planner compiles once per shape group.  Scenarios of different robot
+counts share one shape: smaller fleets are padded to the largest with masked robots
+(``FleetParams.robot_mask``) parked far away, which the planner never plans for and no
+robot sees.  Scenarios that differ in the number of
 waypoints or of spatial dimensions form separate shape groups (one compilation each).
 Compilations of the batch program are counted from JAX's own compile events
 (``jax.monitoring``) and printed (``compilations: 1`` for a one-group grid).
@@ -79,6 +82,7 @@ from jaxplan.experiment import compute_metrics, fleet_params, structures, task_o
 from jaxplan.results import atomic_write_text
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
 from jaxplan.scenarios import Scenario
+from jaxplan.solver import shard_lanes
 
 __all__ = [
     "COLUMNS",
@@ -102,10 +106,12 @@ COLUMNS = KEY_COLUMNS + (
     "error",
 )
 DEFAULT_BATCH = 27  # runs per batch on an accelerator
-# On a CPU one run at a time is faster: a vmapped solver runs every lane for as many
-# iterations as its slowest lane needs (measured, 2 cores: 20 antipodal_10 runs took
-# 127 s as one batch, about 90 s one after another).
-DEFAULT_BATCH_CPU = 1
+# On a CPU one run per device at a time is faster than vmapping runs on one device: a
+# vmapped solver runs every lane for as many iterations as its slowest lane needs
+# (measured, 2 cores: 20 antipodal_10 runs took 127 s as one batch, about 90 s one
+# after another).  Several CPU devices (jaxplan makes one per core) run their runs side
+# by side (_shards).
+DEFAULT_BATCH_CPU = 1  # runs per CPU device
 BATCH_ENV = "JAXPLAN_SWEEP_BATCH"
 PARK_DISTANCE = 1.0e4  # m: where padding robots are parked
 PARK_SPACING = 10.0  # m between parked padding robots
@@ -425,14 +431,18 @@ def _stack(items):
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *items)
 
 
-def _batch_program(fp, task, structure: RolloutStructure):
-    final, records = rollout_batch(fp, task, structure, fp_axis=0)
-    return (final.reached, final.reach_time), records
+def _batch_program(fp, task, structure: RolloutStructure, shards: int = 1):
+    def runs(fp, task):
+        final, records = rollout_batch(fp, task, structure, fp_axis=0)
+        return (final.reached, final.reach_time), records
+
+    # runs split over the CPU's devices, each running its own (module doc)
+    return shard_lanes(runs, (fp, task), shards)
 
 
 _batch_program.__name__ = _PROGRAM
 _batch_program.__qualname__ = _PROGRAM
-_batch_jit = jax.jit(_batch_program, static_argnames=("structure",))
+_batch_jit = jax.jit(_batch_program, static_argnames=("structure", "shards"))
 
 
 class _CompileCounter:
@@ -497,10 +507,18 @@ def _batch_size(batch_size: int | None) -> int:
         else:
             import jax
 
-            batch_size = DEFAULT_BATCH_CPU if jax.default_backend() == "cpu" else DEFAULT_BATCH
+            batch_size = (DEFAULT_BATCH_CPU * len(jax.devices("cpu"))
+                          if jax.default_backend() == "cpu" else DEFAULT_BATCH)
     if int(batch_size) < 1:
         raise SweepError(f"batch size must be >= 1, got {batch_size}")
     return int(batch_size)
+
+
+def _shards(batch: int) -> int:
+    """CPU devices a batch of ``batch`` runs is split over: all of them when the batch
+    is a multiple of their number (on a CPU backend), else 1."""
+    n = len(jax.devices("cpu"))
+    return n if jax.default_backend() == "cpu" and n > 1 and batch % n == 0 else 1
 
 
 def _structure(config: Config, n_dim: int) -> RolloutStructure:
@@ -605,10 +623,14 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
                     fpb = _stack([c.fp for c in full])
                     taskb = _stack([c.task for c in full])
                     if compiled is None:
+                        sh = _shards(B_used)
                         say(f"compiling the planner: batch of {B_used} runs x {m_pad} robots "
-                            f"x {structure.steps} replans ({n_dim}-D, {n_wp} waypoints)")
+                            f"x {structure.steps} replans ({n_dim}-D, {n_wp} waypoints"
+                            + (f"; {sh} CPU devices, {B_used // sh} run(s) each)" if sh > 1
+                               else ")"))
                         t0 = time.perf_counter()
-                        compiled = _batch_jit.lower(fpb, taskb, structure=structure).compile()
+                        compiled = _batch_jit.lower(fpb, taskb, structure=structure,
+                                                    shards=sh).compile()
                         compile_s += time.perf_counter() - t0
                         say(f"compiled in {time.perf_counter() - t0:.1f} s")
                         if bar is None:

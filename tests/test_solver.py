@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import jaxplan  # noqa: F401
+import jaxplan
 from jaxplan import costs, solver
 from jaxplan.benchmarks.solver import index_params, random_problem, stack_params
 from jaxplan.costs import NLPStructure
@@ -171,6 +171,46 @@ def test_changing_weights_does_not_recompile():
     settings = solver.SolverSettings(tol_stationarity=1e-9, mu0=5.0)
     jax.block_until_ready(solver.solve_batch(P, x0, S1, settings))
     assert solver._solve_batch_jit._cache_size() == before
+
+
+def test_batch_split_over_cpu_devices_gives_the_one_device_results():
+    """solve_batch splits a batch of more than LOCKSTEP_MAX NLPs over the CPU devices
+    (jaxplan makes one per core; solver.default_shards): every lane takes the same
+    iterations and ends with the same status as on one device, and the same floats to
+    rounding where it converged.  The batch is odd: padded, and the copies dropped."""
+    n_dev = len(jax.devices("cpu"))
+    if n_dev < 2:
+        pytest.skip("one CPU device (a one-core machine, or JAXPLAN_CPU_DEVICES=1)")
+    assert solver.default_shards(B, "cpu") == n_dev
+    assert solver.default_shards(solver.LOCKSTEP_MAX, "cpu") == 1
+    assert solver.default_shards(640, "gpu") == 1
+    _, P = _s1_batch()
+    x0 = solver.initial_guess_batch(P, S1)
+    for n in (B - 1,):
+        sub = jax.tree.map(lambda a, n=n: a[:n], P)
+        one = jax.device_get(solver.solve_batch(sub, x0[:n], S1, shards=1))
+        split = jax.device_get(solver.solve_batch(sub, x0[:n], S1))
+        np.testing.assert_array_equal(split.status, one.status)
+        np.testing.assert_array_equal(split.iterations, one.iterations)
+        conv = one.status == solver.CONVERGED
+        assert conv.sum() >= 0.9 * n
+        for a, b in zip(jax.tree.leaves(split), jax.tree.leaves(one), strict=True):
+            assert np.asarray(a).shape == np.asarray(b).shape
+            np.testing.assert_allclose(np.asarray(a)[conv], np.asarray(b)[conv],
+                                       rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="shards = 0"):
+        solver.solve_batch(P, x0, S1, shards=0)
+
+
+def test_cpu_device_count_from_the_environment(monkeypatch):
+    """JAXPLAN_CPU_DEVICES sets the CPU device count jaxplan asks JAX for; a bad value
+    fails with a message that names the variable."""
+    monkeypatch.setenv(jaxplan.CPU_DEVICES_ENV, "3")
+    assert jaxplan._cpu_device_count() == 3
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv(jaxplan.CPU_DEVICES_ENV, bad)
+        with pytest.raises(ValueError, match=jaxplan.CPU_DEVICES_ENV):
+            jaxplan._cpu_device_count()
 
 
 def _eigh_batches(lowered):
