@@ -45,8 +45,19 @@ def _cpu_device_count() -> int | None:
     return max(1, min(cores, MAX_CPU_DEVICES))
 
 
+CPU_DEVICES_ERROR: str | None = None  # a bad JAXPLAN_CPU_DEVICES (the CLI exits on it)
+
+
 def _set_cpu_devices() -> None:
-    n = _cpu_device_count()
+    global CPU_DEVICES_ERROR
+    try:
+        n = _cpu_device_count()
+    except ValueError as e:  # warn, keep JAX's choice; `jaxplan` (the CLI) exits on it
+        CPU_DEVICES_ERROR = str(e)
+        import warnings
+
+        warnings.warn(f"{e}; using JAX's default CPU device count", stacklevel=2)
+        return
     if n is None or n == max(jax.config.jax_num_cpu_devices, 1):
         return
     try:

@@ -170,8 +170,11 @@ def _cmd_sweep(args) -> int:
 def main(argv=None) -> int:
     """Entry point; returns the exit status."""
     args = _parser().parse_args(argv)
-    import jaxplan  # noqa: F401  (float64)
+    import jaxplan  # (float64)
 
+    if jaxplan.CPU_DEVICES_ERROR:
+        print(f"jaxplan: error: {jaxplan.CPU_DEVICES_ERROR}", file=sys.stderr)
+        return 2
     cmds = {"run": _cmd_run, "sweep": _cmd_sweep, "plot": _cmd_plot, "bench": _cmd_bench,
             "scenarios": _cmd_scenarios}
     try:

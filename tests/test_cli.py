@@ -79,6 +79,17 @@ def test_python_dash_m(tmp_path):
     assert r.returncode == 0 and "run" in r.stdout
 
 
+def test_bad_cpu_device_count_exits_with_one_line_that_names_it():
+    import os
+
+    env = dict(os.environ, JAXPLAN_CPU_DEVICES="two")
+    r = subprocess.run([sys.executable, "-m", "jaxplan", "scenarios"], capture_output=True,
+                       text=True, timeout=120, env=env)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.strip().splitlines()[-1] == (
+        "jaxplan: error: JAXPLAN_CPU_DEVICES='two': expected a positive integer")
+
+
 @pytest.mark.parametrize("cmd", [["plot", "/nonexistent/dir"]])
 def test_plot_bad_dir(cmd, capsys):
     assert main(cmd) == 2
