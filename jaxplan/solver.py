@@ -641,7 +641,8 @@ def default_shards(batch: int, backend: str | None = None) -> int:
     cold, with all 99 others 1.27x warm; in separate processes (JAXPLAN_CPU_DEVICES=1
     against the default, twice) the batch 1.46x / 1.22x, 100 cold robots with 16
     neighbours 2.4x / 1.5x, 100 warm robots with all others 1.50x / 1.56x.  Warm
-    10-robot replans stay on one device (split: 0.75x, too little work per device).
+    10-robot replans stay on one device (split, measured earlier the same day: 0.75x,
+    too little work per device).
     One XLA program on a CPU runs its kernels one after another; two devices run their
     halves side by side.  (Before _eigh, two devices could deadlock in LAPACK.)"""
     backend = backend or jax.default_backend()
