@@ -1,9 +1,16 @@
 """Shared fixtures: one small fleet problem compiled once per test process."""
 
+import os
+
 import numpy as np
 import pytest
 
-import jaxplan  # noqa: F401  (float64)
+# One JAX CPU device per test process: `make test` runs two pytest workers on two cores,
+# and two devices in each oversubscribed them (the suite took ~1.5 min longer).  The
+# tests of the split over devices run child processes with JAXPLAN_CPU_DEVICES=2.
+os.environ.setdefault("JAXPLAN_CPU_DEVICES", "1")
+
+import jaxplan  # noqa: E402, F401  (float64)
 
 TINY_TOML = """
 name = "tiny"

@@ -187,7 +187,8 @@ def sweep_env(tmp_path_factory):
     # 8 runs in batches of 2 -> 4 batches, so a kill lands mid-sweep; the three
     # processes share one persistent compilation cache (each still reports its one
     # compilation of the batch program)
-    env = child_env(d / "jax_cache", JAXPLAN_SWEEP_BATCH="2")
+    # two CPU devices: each batch of 2 runs is split over them (sweep._shards)
+    env = child_env(d / "jax_cache", JAXPLAN_SWEEP_BATCH="2", JAXPLAN_CPU_DEVICES="2")
     return d, cfg, env
 
 
