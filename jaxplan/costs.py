@@ -53,15 +53,19 @@ sample times in (0, T].  Bound: T >= t_min.
 
 Derivatives
 -----------
-All derivatives come from JAX autodiff of the functions below; structure makes them
-cheap: every sampled term is  sum_k f_k(y_k(x))  with y_k a few local features at
-sample k (position / velocity / ... and T).  y is linear in z for fixed tau, so
-  grad = sum_k J_k' g_k,   Hess = sum_k J_k' H_k J_k + (tau row/column of one Hessian-
-  vector product of  sum_k g_k . y_k(x)),
-with g_k, H_k the autodiff gradient and Hessian of f_k in its few local features.  The
-other robots' positions at t_k = T s_k depend on T; their second-order Taylor jet in T
-(exact value, first and second derivative at the current T) is formed once per
-iteration, so the local Hessians are cheap arithmetic.
+All derivatives come from JAX autodiff; structure makes them cheap.  Every sampled term
+is  sum_k F_k(P_1k, .., P_mk, T)  with a few feature groups P_g (N, K) (the own
+position at the collision samples; velocity, acceleration and jerk at the limit
+samples) and T.  Each axis's features are affine in that axis's shape variables for a
+fixed tau:  P_g = b_g(tau) + z C_g(tau)^T  (C_g the same for every axis; constant except
+on the coast rows).  So, with the local gradient and Hessian of F_k in its few
+features (autodiff of the scalar functions: :func:`_d012`) and the tau jets of b_g and
+C_g (nested jvp: :func:`_affine_jets`), the gradient and Hessian in x are sums of
+small per-sample blocks (:func:`_chain`): no (n x n) Hessian per sample, no batched
+small matrix products.  The other robots' positions at t_k = T s_k depend on T; their
+second-order Taylor jet in T (exact value, first and second derivative at the current
+T) is formed at every evaluation from their coefficients, laid out once per solve
+(:func:`prepare_others`).  Checked against jax.hessian in tests/test_costs.py.
 """
 
 from __future__ import annotations
@@ -709,35 +713,6 @@ def _vgh(f, y, *args):
     return v, g, H
 
 
-def _feature_jacobians(feat, x):
-    """J = dy/dx and dJ/dtau of the per-sample features y = feat(x) (K, m), samples last:
-    (m, n, K) each, in one forward-over-forward pass (y is linear in z for a fixed tau,
-    so the features' second derivatives all lie in the tau row / column)."""
-    et = jnp.zeros(x.shape[0], x.dtype).at[-1].set(1.0)
-    J, dJ = jax.jvp(jax.jacfwd(feat), (x,), (et,))  # (K, m, n) each
-    return jnp.moveaxis(J, 0, -1), jnp.moveaxis(dJ, 0, -1)
-
-
-def _add_tau_curvature(H, u):
-    """H plus the features' own curvature u = sum_k G_k . d2y_k/dx dtau (n,), which lies
-    in the tau row and column."""
-    return H.at[:, -1].add(u).at[-1, :].add(u).at[-1, -1].add(-u[-1])
-
-
-def _assemble(feat, x, val, G, Hl):
-    """Chain rule through the per-sample features y = feat(x) (K, m): the local value
-    ``val`` (summed), gradients G (m, K) and Hessians Hl (m, m, K), samples last."""
-    Jt, dJt = _feature_jacobians(feat, x)
-    # sum_k J_k^T Hl_k J_k elementwise with the samples last (the long axis): under vmap
-    # (2-64 lanes) XLA's CPU code for the batched small matrix products was ~1.15x slower
-    # per derivative call (one unbatched call is ~10% faster with them; not a hot path)
-    HJ = jnp.sum(Hl[:, :, None, :] * Jt[None], axis=1)  # (m, n, K)
-    H = jnp.sum(Jt[:, :, None, :] * HJ[:, None, :, :], axis=(0, 3))
-    grad = jnp.sum(G[:, None, :] * Jt, axis=(0, 2))
-    u = jnp.sum(G[:, None, :] * dJt, axis=(0, 2))
-    return jnp.sum(val), grad, _add_tau_curvature(H, u)
-
-
 def _d012(fn, x):
     """Elementwise value, first and second derivative of an elementwise function (autodiff)."""
     one = jnp.ones_like(x)
@@ -745,147 +720,292 @@ def _d012(fn, x):
     return v, d1, d2
 
 
-def _radial(X, u, w, T, a, b):
-    """Value, gradients and Hessians in y_k = (p_k (N), T) of  sum_j [T a_kj(r_kj) +
-    b_kj(r_kj)] at every sample k, r_kj = |X_kj|^2, X_kj = p_k - o_j(T s_k),
-    dX_kj/dp_k = I, dX_kj/dT = u_kj, d2X_kj/dT2 = w_kj.
+# ---------------------------------------------------------------------- structured derivatives
+class OthersPrep(NamedTuple):
+    """The other robots' predictions in the layout the derivatives read, formed once per
+    solve (:func:`prepare_others`): coefficients of their derivatives 0..2 in seconds,
+    components first and the other robots before the sample axis, non-finite or masked
+    ones zeroed."""
 
-    X, u, w: (N, K, J), components first; a, b: (value, first, second derivative in r)
-    arrays (K, J), from autodiff (_d012).  Returns the summed value, the gradients
-    (N + 1, K) and the Hessians (N + 1, N + 1, K), samples last (what :func:`_assemble`
-    takes).  This is the chain rule of the composition through the scalars r_kj and T
-    (structure, not a derivation: every term's own derivatives come from autodiff);
-    checked against jax.hessian of the same value in tests/test_costs.py.  Formed for all
-    samples at once with the samples and the other robots as the long axes: a vmap of the
-    per-sample form over K (components last) was 1.3x (10 others) to 1.7x (99 others)
-    slower per derivative call on a 2-core CPU.
-    """
-    av, a1, a2 = a
-    bv, b1, b2 = b
-    cd = T * a1 + b1
-    cdd = T * a2 + b2
-    Xu = jnp.sum(X * u, axis=0)
-    val = jnp.sum(T * av + bv)
-    gp = 2.0 * jnp.sum(cd * X, axis=-1)
-    gT = jnp.sum(2.0 * cd * Xu + av, axis=-1)
-    N = X.shape[0]
-    Hpp = (4.0 * jnp.sum(cdd * X[:, None] * X[None, :], axis=-1)
-           + 2.0 * jnp.sum(cd, axis=-1) * jnp.eye(N, dtype=X.dtype)[:, :, None])
-    HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1) * X + 2.0 * cd * u, axis=-1)
-    HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * (jnp.sum(u * u, 0) + jnp.sum(X * w, 0))
-                  + 4.0 * a1 * Xu, axis=-1)
-    G = jnp.concatenate([gp, gT[None]], axis=0)
-    H = jnp.concatenate([jnp.concatenate([Hpp, HpT[:, None]], axis=1),
-                         jnp.concatenate([HpT[None], HTT[None, None]], axis=1)], axis=0)
-    return val, G, H
+    c: jax.Array  # (3, N, So, Mo, Kd): d^r/dt^r coefficients in the segment's s (zero-padded)
+    lo: jax.Array  # (So, Mo) segment start, s
+    he: jax.Array  # (So, Mo) segment length (1 where zero)
+    pos: jax.Array  # (So, Mo) bool: the segment has a positive length
+    brk: jax.Array  # (max(So - 1, 1), Mo) interior breaks (segment look-up)
+    end: jax.Array  # (Mo,) end time T_j
+    coast: jax.Array  # (Mo,) bool
 
 
-def _collision_radial(yc, jet, s, w, lam, params, structure, mu, on):
-    """Structured derivatives of the barrier / constraint collision terms at all samples:
-    yc (K, N + 1) features, jet the others' derivatives 0..2 (K, Mo, N) each; ``on``
-    (K,): whether a sample's constraint is active."""
-    N = structure.n_dim
-    p, T = yc[:, :N].T, yc[0, -1]
-    o0, o1, o2 = (jnp.moveaxis(o, -1, 0) for o in jet)  # (N, K, Mo)
-    X = p[:, :, None] - o0
-    u = -s[None, :, None] * o1
-    ww = -(s * s)[None, :, None] * o2
-    r = jnp.sum(X * X, axis=0)
-    mask = params.other_mask
-    rho = params.radius + params.other_radius
-    wt = params.weights
-    zero = (jnp.zeros_like(r),) * 3
-    if structure.barrier:
-        af = lambda rr: jnp.where(
-            mask, wt.q_obs * w[:, None] * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
-        a = _d012(af, r)
-    else:
-        a = zero
-    if structure.collision_constraints:
-        bf = lambda rr: jnp.where(mask & on[:, None], al_term(rr - rho * rho, lam, mu), 0.0)
-        bb = _d012(bf, r)
-    else:
-        bb = zero
-    return _radial(X, u, ww, T, a, bb)
+def prepare_others(others: Trajectory, mask) -> OthersPrep:
+    """:class:`OthersPrep` of the others' predictions (what :func:`_others_derivs` reads
+    at every call, cleaned and scaled once)."""
+    c = others.coeffs
+    b = others.breaks
+    ok = mask & jnp.all(jnp.isfinite(c), axis=(-1, -2, -3)) & jnp.all(jnp.isfinite(b), axis=-1)
+    c = jnp.where(ok[:, None, None, None], c, 0.0)  # (Mo, So, N, Kd)
+    b = jnp.where(ok[:, None], b, 0.0)
+    So, N, Kd = c.shape[-3:]
+    lo, hi = b[:, :-1].T, b[:, 1:].T  # (So, Mo)
+    h = hi - lo
+    he = jnp.where(h > 0, h, 1.0)
+    cc = jnp.moveaxis(c, (2, 1, 0), (0, 1, 2))  # (N, So, Mo, Kd)
+    rows = []
+    for r in range(3):
+        f = np.array([_falling(i, r) for i in range(r, Kd)] + [0] * min(r, Kd), float)[:Kd]
+        cr = jnp.concatenate([cc[..., r:], jnp.zeros(cc.shape[:-1] + (min(r, Kd),), c.dtype)],
+                             axis=-1)[..., :Kd]
+        rows.append(cr * f / (he[None, :, :, None] ** r))
+    brk = b[:, 1:So].T if So > 1 else jnp.zeros((1, b.shape[0]), b.dtype)
+    return OthersPrep(jnp.stack(rows), lo, he, h > 0, brk, b[:, -1], others.coast)
 
 
-def _limits_derivs(feat, x, w, lam, params, structure, mu, soft: bool):
-    """(value, gradient, Hessian) in x of the soft limits (soft=True; ``w`` the quadrature
-    weights (K,)) or of the hard-limit AL terms (``lam`` (K, 3)) at the samples of
-    ``feat`` (y_k = (v, a, j, T) = feat(x)[k]).
+def _jet(op: OthersPrep, t, R: int):
+    """The others' derivatives 0..R at times t (K,): a list of (N, Mo, K) arrays (what
+    :func:`_others_derivs` gives, laid out components first and samples last).  After an
+    other's end it holds (coast False) or coasts (coast True)."""
+    So, Kd = op.c.shape[2], op.c.shape[-1]
+    tt = t[None, :]
+    To = op.end[:, None]
+    tc = jnp.clip(tt, 0.0, To)  # (Mo, K)
+    if So > 1:
+        k = jnp.clip(jnp.sum(op.brk[:, :, None] <= tc[None], axis=0), 0, So - 1)
+    vals = []
+    for r in range(max(R, 1) + 1):
+        out = 0.0
+        for i in range(So):
+            s = jnp.where(op.pos[i][:, None], (tc - op.lo[i][:, None]) / op.he[i][:, None], 0.0)
+            cr = op.c[r, :, i]  # (N, Mo, Kd)
+            v = cr[..., Kd - 1, None]
+            for j in range(Kd - 2, -1, -1):
+                v = v * s[None] + cr[..., j, None]
+            out = v if So == 1 else out + jnp.where((k == i)[None], v, 0.0)
+        vals.append(out)
+    after = (tt > To)[None]
+    coast = op.coast[None, :, None]
+    res = [vals[0] + jnp.where(after & coast, vals[1] * (tt - To)[None], 0.0)]
+    if R >= 1:
+        res.append(jnp.where(after & ~coast, 0.0, vals[1]))
+    for r in range(2, R + 1):
+        res.append(jnp.where(after, 0.0, vals[r]))
+    return res
 
-    Each limit is radial in its own slot of y (r = |x^(k)|^2, no offset: :func:`_radial`
-    with u = w = 0), so its Hessian in y is block-diagonal, 4 c'' Y Y^T + 2 c' I per
-    block plus the T cross terms; the chain rule is applied per block with J^T Y formed
-    once (samples last), never the full (3N + 1)^2 Hessian per sample (the generic
-    :func:`_assemble` of that was ~2/3 of the soft limits' derivative time).  Checked
-    against jax.hessian in tests/test_costs.py."""
-    N = structure.n_dim
+
+def _affine_jets(fn, tau):
+    """fn(tau) -> (b (N, K), C (K, nz)), the features P = b + z C^T, affine in z for a
+    fixed tau: their values and first and second tau derivatives (nested jvp)."""
+    one = jnp.ones_like(tau)
+    (v, d1), (_, d2) = jax.jvp(lambda t: jax.jvp(fn, (t,), (one,)), (tau,), (one,))
+    return v, d1, d2
+
+
+def _chain(z, T, jets, G, Hgg, HgT, GT, HTT):
+    """(gradient (n,), Hessian (n, n)) in x = (z, tau) of a sum over samples k of local
+    terms F_k(P_1k, .., P_mk, T) through feature groups P_g = b_g(tau) + z C_g(tau)^T
+    (N, K) each and T = exp(tau) (the chain rule of that composition; every factor comes
+    from autodiff).
+
+    jets: per group ((b, C), (b', C'), (b'', C'')) from :func:`_affine_jets`.  G, Hgg,
+    HgT: per group the local gradient (N, K), Hessian (N, N, K) and T cross term (N, K)
+    of F; GT, HTT (K,): its T gradient and curvature.  The local Hessian has no blocks
+    between groups (true of the radial terms here)."""
+    N, nz = z.shape
+    gz = jnp.zeros((N, nz), z.dtype)
+    gt = jnp.sum(GT) * T
+    hzz = jnp.zeros((N, nz, N, nz), z.dtype)
+    hzt = jnp.zeros((N, nz), z.dtype)
+    htt = jnp.sum(T * T * HTT + T * GT)
+    for ((_, C), (b1, C1), (b2, C2)), Gg, Hg, HT in zip(jets, G, Hgg, HgT, strict=True):
+        pt = b1 + jnp.sum(z[:, :, None] * C1.T[None], axis=1)  # (N, K)
+        ptt = b2 + jnp.sum(z[:, :, None] * C2.T[None], axis=1)
+        Ct = C.T  # (nz, K)
+        gz = gz + jnp.sum(Gg[:, None, :] * Ct[None], axis=-1)
+        gt = gt + jnp.sum(Gg * pt)
+        CC = Ct[:, None, :] * Ct[None, :, :]  # (nz, nz, K)
+        hzz = hzz + jnp.sum(Hg[:, None, :, None, :] * CC[None, :, None, :, :], axis=-1)
+        Hpt = jnp.sum(Hg * pt[None, :, :], axis=1)  # (N, K)
+        hzt = hzt + jnp.sum((Hpt + HT * T)[:, None, :] * Ct[None], axis=-1) + jnp.sum(
+            Gg[:, None, :] * C1.T[None], axis=-1)
+        htt = htt + jnp.sum(pt * Hpt) + 2.0 * T * jnp.sum(HT * pt) + jnp.sum(Gg * ptt)
+    n = N * nz + 1
+    H = jnp.zeros((n, n), z.dtype)
+    H = H.at[:-1, :-1].set(hzz.reshape(N * nz, N * nz))
+    H = H.at[:-1, -1].set(hzt.reshape(-1)).at[-1, :-1].set(hzt.reshape(-1)).at[-1, -1].set(htt)
+    return jnp.concatenate([gz.reshape(-1), gt[None]]), H
+
+
+def _e_of_tau(params, structure):
+    return lambda tau: boundary_vector(params, jnp.exp(tau) / structure.segments)
+
+
+def _kind_rows(params, name: str, r: int):
+    """(B (K, 6) applied as a function e (6, N) -> (N, K), C (K, nz)) of the sample set
+    ``name`` of the basis, derivative r, for the lane's end kind: both kinds' constants
+    are applied (one matrix product for all lanes under vmap, where a per-lane matrix
+    would be a batched product of small matrices) and the lane's result selected."""
+    def rows(structure):
+        b = basis(structure)
+        both = np.stack([getattr(b.free, name)[r], getattr(b.rest, name)[r]])  # (2, K, 6+nz)
+        Bm = jnp.asarray(both[:, :, :6].reshape(-1, 6))
+        K = both.shape[1]
+        rest = jnp.asarray(params.rest, bool)
+
+        def apply(e):
+            out = (Bm @ e).reshape(2, K, -1)
+            return jnp.where(rest, out[1], out[0]).T
+
+        C = jnp.where(rest, jnp.asarray(both[1, :, 6:]), jnp.asarray(both[0, :, 6:]))
+        return apply, C
+    return rows
+
+
+def _lim_jets(params, structure, name, tau):
+    """Jets of the velocity, acceleration and jerk features at the basis sample set
+    ``name`` ("quad" or "lim"): three groups, Y_r = (B_r e(h) + C_r z) / h^r."""
+    S = structure.segments
+    e_of = _e_of_tau(params, structure)
+
+    def fn(r):
+        apply, C = _kind_rows(params, name, r)(structure)
+
+        def f(t):
+            h = jnp.exp(t) / S
+            return apply(e_of(t)) / h**r, C / h**r
+        return f
+
+    return [_affine_jets(fn(r), tau) for r in (1, 2, 3)]
+
+
+def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
+    """Value, gradient and Hessian of the soft limits (``w`` the quadrature weights) or of
+    the hard-limit AL terms (``lam`` (K, 3)) through their three radial feature groups."""
     lim = params.limits
-    n = x.shape[0]
-    y = feat(x)  # (K, 3N + 1)
-    Jt, dJt = _feature_jacobians(feat, x)  # (3N + 1, n, K) each
-    K = y.shape[0]
-    Y = y[:, : 3 * N].T.reshape(3, N, K)  # rows: velocity, acceleration, jerk
-    T = y[0, -1]
-    tau2 = (jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2)[:, None]
-    r = jnp.sum(Y * Y, axis=1)  # (3, K)
-    zero = (jnp.zeros_like(r),) * 3
-    if soft:
-        a = _d012(lambda rr: params.weights.q_lim * w[None, :] * sexp(rr - tau2), r)
-        b = zero
-    else:
-        a = zero
-        b = _d012(lambda rr: al_term(1.0 - rr / tau2, lam.T, mu), r)
-    av, a1, a2 = a
-    bv, b1, b2 = b
-    cd = T * a1 + b1
-    cdd = T * a2 + b2
-    JY = Jt[: 3 * N].reshape(3, N, n, K)
-    q = jnp.sum(Y[:, :, None, :] * JY, axis=1)  # J_r^T Y_r: (3, n, K)
-    avs = jnp.sum(av, axis=0)  # d value / dT per sample
-    val = jnp.sum(T * av + bv)
-    grad = jnp.sum(2.0 * cd[:, None, :] * q, axis=(0, 2)) + jnp.sum(avs * Jt[-1], axis=-1)
-    H = (jnp.sum((4.0 * cdd)[:, None, None, :] * q[:, :, None, :] * q[:, None, :, :], axis=(0, 3))
-         + jnp.sum((2.0 * cd)[:, None, None, None, :] * JY[:, :, :, None, :]
-                   * JY[:, :, None, :, :], axis=(0, 1, 4)))
-    c = jnp.sum((2.0 * a1)[:, None, :] * q, axis=0)  # d2 value / dY dT through J: (n, K)
-    X = jnp.sum(c[:, None, :] * Jt[-1][None, :, :], axis=-1)
-    H = H + X + X.T
-    u = (jnp.sum((2.0 * cd)[:, None, None, :] * Y[:, :, None, :]
-                 * dJt[: 3 * N].reshape(3, N, n, K), axis=(0, 1, 3))
-         + jnp.sum(avs * dJt[-1], axis=-1))  # sum_k G_k . d2y_k/dx dtau
-    return val, grad, _add_tau_curvature(H, u)
+    Y = [b + jnp.sum(z[:, :, None] * C.T[None], axis=1) for (b, C), _, _ in jets]  # (N, K)
+    val = 0.0
+    G, Hgg, HgT = [], [], []
+    GT = 0.0
+    N = z.shape[0]
+    eye = jnp.eye(N, dtype=z.dtype)[:, :, None]
+    for r, (Yr, tmax) in enumerate(zip(Y, (lim.v_max, lim.a_max, lim.j_max), strict=True)):
+        rho = jnp.sum(Yr * Yr, axis=0)  # (K,)
+        if soft:
+            av, a1, a2 = _d012(lambda rr, tm=tmax: params.weights.q_lim * w * sexp(rr - tm**2), rho)
+            cd, cdd = T * a1, T * a2
+            val = val + T * jnp.sum(av)
+            GT = GT + av
+            HgT.append(2.0 * a1 * Yr)
+        else:
+            bv, cd, cdd = _d012(lambda rr, tm=tmax, r=r: al_term(1.0 - rr / tm**2, lam[:, r], mu),
+                                rho)
+            val = val + jnp.sum(bv)
+            HgT.append(jnp.zeros_like(Yr))
+        G.append(2.0 * cd * Yr)
+        Hgg.append(4.0 * cdd * Yr[:, None, :] * Yr[None, :, :] + 2.0 * cd * eye)
+    K = Y[0].shape[-1]
+    GT = jnp.broadcast_to(GT, (K,)) if soft else jnp.zeros(K, z.dtype)
+    g, H = _chain(z, T, jets, G, Hgg, HgT, GT, jnp.zeros(K, z.dtype))
+    return val, g, H, Y
 
 
-def merit_derivs(x, params, structure, kc, mult: Multipliers, mu):
-    """(value, gradient (n,), Hessian (n, n)) of the augmented Lagrangian at x."""
+def _col_jets(params, structure, kc, tau):
+    """Jets of the own positions at the collision rows (samples, then the coast)."""
+    S = structure.segments
+    e_of = _e_of_tau(params, structure)
+    n = structure.n_coast
+    apply, C0 = _kind_rows(params, "col", 0)(structure)
+
+    def f(t):
+        e = e_of(t)
+        b = apply(e)  # (N, Kc)
+        C = C0
+        if n:
+            h = jnp.exp(t) / S
+            tc = jnp.arange(1, n + 1) / n * coast_time(params.limits)
+            E0, E1 = kc.end[0, 0], kc.end[1, 0]
+            be = (E0[:6] @ e)[:, None] + (E1[:6] @ e)[:, None] * (tc / h)[None, :]
+            Ce = E0[None, 6:] + (tc / h)[:, None] * E1[None, 6:]
+            b = jnp.concatenate([b, be], axis=1)
+            C = jnp.concatenate([C, Ce], axis=0)
+        return b, C
+
+    return _affine_jets(f, tau)
+
+
+def merit_derivs(x, params, structure, kc, mult: Multipliers, mu, with_g: bool = False,
+                 others: OthersPrep | None = None):
+    """(value, gradient (n,), Hessian (n, n)) of the augmented Lagrangian at x; with
+    ``with_g`` also the inequality constraints g(x) (as :func:`constraints`, from the
+    same features and other-robot positions: what the solver needs at a trial point).
+
+    By the features' block structure (module doc): each axis's features are affine in
+    that axis's shape variables, so the chain rule (:func:`_chain`) runs on small
+    per-sample blocks; the other robots' jets come from ``others`` (formed once per solve
+    by :func:`prepare_others`; here when None)."""
     b = basis(structure)
-    v0, g0, H0 = _vgh(lambda xx: _smooth_time(xx, params, structure, kc), x)
-    total_v, total_g, total_H = v0, g0, H0
-
-    featq = lambda xx: _features(xx, params, structure, kc.quad, (1, 2, 3))
-    v, g, H = _limits_derivs(featq, x, jnp.asarray(b.quad_w), None, params, structure, mu, True)
-    total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
-
+    N = structure.n_dim
+    Mo = params.other_mask.shape[-1]
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    gc = jnp.ones((structure.n_col, Mo), x.dtype)
+    gh = jnp.ones((len(b.lim_s), 3), x.dtype)
+    tv, tg, tH = _vgh(lambda xx: _smooth_time(xx, params, structure, kc), x)
+    jq = _lim_jets(params, structure, "quad", tau)
+    v, g, H, _ = _lim_terms(z, T, jq, jnp.asarray(b.quad_w), None, params, mu, True)
+    tv, tg, tH = tv + v, tg + g, tH + H
     if structure.paper:
         v, g, H = _vgh(lambda xx: _paper_exact(xx, params, structure, kc), x)
-        total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
-
+        tv, tg, tH = tv + v, tg + g, tH + H
     if _has_collision(structure):
-        featc = lambda xx: _col_features(xx, params, structure, kc, (0,))
-        yc = featc(x)
-        T = jax.lax.stop_gradient(yc[0, -1])
+        op = prepare_others(params.others, params.other_mask) if others is None else others
         s, off, w, on = _col_samples(params, structure)
-        jet = _others_derivs(params.others, params.other_mask, T * s + off, 2)
-        lam = (mult.collision if structure.collision_constraints
-               else jnp.zeros(jet[0].shape[:2], x.dtype))
-        vc, gc, Hc = _collision_radial(yc, jet, s, w, lam, params, structure, mu, on)
-        v, g, H = _assemble(featc, x, vc, gc, Hc)
-        total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
-
+        jets = _col_jets(params, structure, kc, tau)
+        (bp, C), _, _ = jets
+        p = bp + jnp.sum(z[:, :, None] * C.T[None], axis=1)  # (N, K)
+        o0, o1, o2 = _jet(op, T * s + off, 2)  # (N, Mo, K)
+        X = p[:, None, :] - o0
+        u = -s * o1
+        ww = -(s * s) * o2
+        r = jnp.sum(X * X, axis=0)  # (Mo, K)
+        mask = params.other_mask[:, None]
+        rho = (params.radius + params.other_radius)[:, None]
+        wt = params.weights
+        zero = (jnp.zeros_like(r),) * 3
+        if structure.barrier:
+            af = lambda rr: jnp.where(
+                mask, wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
+            av, a1, a2 = _d012(af, r)
+        else:
+            av, a1, a2 = zero
+        if structure.collision_constraints:
+            use = mask & on[None, :]
+            lam = mult.collision.T
+            bf = lambda rr: jnp.where(use, al_term(rr - rho * rho, lam, mu), 0.0)
+            bv, b1, b2 = _d012(bf, r)
+            if with_g:
+                gc = jnp.where(use, r - rho * rho, 1.0).T
+        else:
+            bv, b1, b2 = zero
+        cd = T * a1 + b1
+        cdd = T * a2 + b2
+        Xu = jnp.sum(X * u, axis=0)
+        v = jnp.sum(T * av + bv)
+        Gp = 2.0 * jnp.sum(cd * X, axis=1)
+        GT = jnp.sum(2.0 * cd * Xu + av, axis=0)
+        eye = jnp.eye(N, dtype=x.dtype)[:, :, None]
+        Hpp = (4.0 * jnp.sum(cdd * X[:, None] * X[None, :], axis=2)
+               + 2.0 * jnp.sum(cd, axis=0) * eye)
+        HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1) * X + 2.0 * cd * u, axis=1)
+        q = jnp.sum(u * u + X * ww, axis=0)
+        HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * q + 4.0 * a1 * Xu, axis=0)
+        g, H = _chain(z, T, [jets], [Gp], [Hpp], [HpT], GT, HTT)
+        tv, tg, tH = tv + v, tg + g, tH + H
     if structure.hard_limits:
-        feath = lambda xx: _features(xx, params, structure, kc.lim, (1, 2, 3))
-        v, g, H = _limits_derivs(feath, x, None, mult.limits, params, structure, mu, False)
-        total_v, total_g, total_H = total_v + v, total_g + g, total_H + H
-    return total_v, total_g, total_H
+        jh = _lim_jets(params, structure, "lim", tau)
+        v, g, H, Yh = _lim_terms(z, T, jh, None, mult.limits, params, mu, False)
+        tv, tg, tH = tv + v, tg + g, tH + H
+        if with_g:
+            lim = params.limits
+            gh = jnp.stack([1.0 - jnp.sum(Y * Y, axis=0) / tm**2 for Y, tm in
+                            zip(Yh, (lim.v_max, lim.a_max, lim.j_max), strict=True)], axis=-1)
+    if with_g:
+        return tv, tg, tH, Multipliers(gc, gh)
+    return tv, tg, tH

@@ -22,9 +22,18 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
   lam~ = max(0, lam - mu g) (the multiplier estimate whose Lagrangian gradient is the
   AL gradient).  A bounded loop (``max_iters``); per-lane status, never raised.
 
+Evaluations: a solver step (:func:`_step`) is ONE evaluation of L_A's value,
+derivatives and constraints per lane, at the lane's next point: its iterate, or a
+line-search trial.  An accepted trial's derivatives start the next iteration (unless
+its multipliers change there), so the usual iteration (derivatives at x, then merit
+trials) costs one evaluation when the first trial is accepted, and a rejected trial
+costs derivatives that go unused.  In exchange no lane ever waits for another's
+backtracking: under vmap a nested line-search loop runs every lane for as many trials
+as the slowest needs.  The iterates are those of the textbook loop above.
+
 Batches: :func:`solve_batch` / :func:`solve_lanes` step a pool of lanes at a time and
 hand each finished slot the next lane, so a batch costs about the sum of its lanes'
-iterations rather than B times the largest (each lane's iterations are those of
+evaluations rather than B times the largest (each lane's iterations are those of
 :func:`solve`).  :func:`solve_differentiable`: the solution differentiable with respect
 to the weights by implicit differentiation (jaxopt ``custom_root``).
 
@@ -105,7 +114,13 @@ class Solution(NamedTuple):
 
 
 class _State(NamedTuple):
-    x: jax.Array
+    """One lane's solver state between evaluations (:func:`_step`).
+
+    The lane is either at its *base* (``base``: the next evaluation is at y = x, whose
+    derivatives start an iteration) or in a line search from x along d (the next
+    evaluation is the trial y = x + a d, its k-th)."""
+
+    x: jax.Array  # the iterate (base)
     mult: Multipliers
     mu: jax.Array
     g: Multipliers  # the constraints at x
@@ -116,7 +131,13 @@ class _State(NamedTuple):
     done: jax.Array
     bad: jax.Array
     kkt: jax.Array
-    theta: jax.Array
+    theta: jax.Array  # Newton decrement^2 at x
+    base: jax.Array  # bool: the next evaluation is at x
+    y: jax.Array  # the point of the next evaluation
+    d: jax.Array  # the (capped) step from x
+    grad: jax.Array  # the projected gradient of L_A at x (Armijo)
+    a: jax.Array  # the step length of y along d
+    k: jax.Array  # int32: trials before y in this line search
 
 
 def _tree_where(c, a, b):
@@ -298,6 +319,7 @@ class _Lane(NamedTuple):
     tau_min: jax.Array
     objective0: jax.Array
     viol0: jax.Array
+    others: costs.OthersPrep  # the others' predictions as the derivatives read them
 
 
 def _prepare(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
@@ -316,11 +338,13 @@ def _prepare(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
     mu0 = jnp.asarray(s.mu0 if penalty is None else penalty, jnp.float64)
     mu0 = jnp.where(jnp.isfinite(mu0) & (mu0 > 0), mu0, s.mu0)
     f0, g0 = costs.merit_and_constraints(x0, params, structure, kc, mult0, mu0)
-    st0 = _State(x0, mult0, mu0, g0, f0, jnp.asarray(jnp.inf), jnp.asarray(False),
-                 jnp.asarray(0, jnp.int32),
-                 jnp.asarray(False), jnp.asarray(False), jnp.asarray(jnp.inf), jnp.asarray(jnp.inf))
+    F = lambda v: jnp.asarray(v, jnp.float64)
+    st0 = _State(x0, mult0, mu0, g0, f0, F(jnp.inf), jnp.asarray(False), jnp.asarray(0, jnp.int32),
+                 jnp.asarray(False), jnp.asarray(False), F(jnp.inf), F(jnp.inf),
+                 base=jnp.asarray(True), y=x0, d=jnp.zeros_like(x0), grad=jnp.zeros_like(x0),
+                 a=F(0.0), k=jnp.asarray(-1, jnp.int32))
     lane = _Lane(params, tau_min, _objective(f0, g0, mult0, mu0, params, structure),
-                 _max_violation(g0))
+                 _max_violation(g0), costs.prepare_others(params.others, params.other_mask))
     return lane, st0, finite_in, x0
 
 
@@ -340,86 +364,89 @@ def _objective(f, g: Multipliers, mult: Multipliers, mu, params: NLPParams,
 
 
 def _active(st: _State, s: SolverSettings):
-    """Whether the lane takes another iteration."""
-    return (~st.done) & (st.it < s.max_iters)
+    """Whether the lane takes another evaluation: not converged, and in a line search or
+    with iterations left."""
+    return (~st.done) & ~(st.base & (st.it >= s.max_iters))
 
 
 def _step(st: _State, lane: _Lane, structure: NLPStructure, s: SolverSettings) -> _State:
-    """One solver iteration of one lane (module doc); a done lane is returned as is."""
+    """One evaluation of one lane: the derivatives of L_A (and the constraints) at st.y,
+    then what they decide (module doc); a done lane is returned as is.
+
+    In a line search, y is a trial: it is accepted (Armijo on L_A) or the next trial
+    is set (cut back past the first AL branch crossing, else halved: _next_trial).  An
+    accepted trial is the next iterate, and its derivatives, already at hand, start the
+    next iteration unless the multipliers change there (then the next evaluation is at
+    the iterate again, with the new ones).  So a trial costs the derivatives (a merit
+    value alone would do for a rejected one), and no lane waits for another's
+    backtracking: a pool step is one evaluation per lane.  The iterates are those of an
+    SQP iteration "multiplier update, derivatives at x, step, backtracking line search"."""
     params, tau_min = lane.params, lane.tau_min
     kc = costs.kind_constants(params.rest, structure)
     n = st.x.shape[0]
-    # 1. multiplier / penalty update (inner problem nearly solved at st.x)
-    lam_new = jax.tree.map(lambda l, g: jnp.maximum(0.0, l - st.mu * g), st.mult, st.g)
-    viol = _max_violation(st.g)
-    grow = st.pending & (viol > s.tol_feasibility) & (viol > s.stall_ratio * st.viol_ref)
+    fy, gr, H, gy = costs.merit_derivs(st.y, params, structure, kc, st.mult, st.mu,
+                                       with_g=True, others=lane.others)
+    # 1. the trial: accepted, another one, or the line search failed
+    trial = ~st.base
+    ok = trial & jnp.isfinite(fy) & (fy <= st.f + s.armijo * (st.grad @ (st.y - st.x)))
+    more = trial & ~ok & (st.k < s.max_backtracks)
+    failed = trial & ~ok & ~more
+    thr = jax.tree.map(lambda l: l / st.mu, st.mult)  # g < thr: the AL term is active
+    a_next = _next_trial(st.a, st.g, gy, thr, s.kink_overshoot)
+    # the iterate after this evaluation (an accepted trial, else x) and its constraints
+    x = jnp.where(ok, st.y, st.x)
+    g = _tree_where(ok | st.base, gy, st.g)
+    f_x = jnp.where(ok | st.base, fy, st.f)
+    # 2. a line search that ended: the multiplier / penalty update it calls for
+    ended = ok | failed
+    pending = jnp.where(ended, (st.theta <= s.inner_tol * (1.0 + jnp.abs(st.f))) | failed,
+                        st.pending)
+    upd = ended & pending & (st.it < s.max_iters)
+    lam_new = jax.tree.map(lambda l, gg: jnp.maximum(0.0, l - st.mu * gg), st.mult, g)
+    viol = _max_violation(g)
+    grow = upd & (viol > s.tol_feasibility) & (viol > s.stall_ratio * st.viol_ref)
     mu = jnp.where(grow, jnp.minimum(st.mu * s.mu_growth, s.mu_max), st.mu)
-    mult = _tree_where(st.pending, lam_new, st.mult)
-    viol_ref = jnp.where(st.pending, viol, st.viol_ref)
-    x = st.x
-    # 2. derivatives and the bound on tau
-    f, gr, H = costs.merit_derivs(x, params, structure, kc, mult, mu)
+    mult = _tree_where(upd, lam_new, st.mult)
+    viol_ref = jnp.where(upd, viol, st.viol_ref)
+    changed = grow | jnp.any(jnp.stack([jnp.any(m != l) for m, l in
+                                        zip(jax.tree.leaves(mult), jax.tree.leaves(st.mult),
+                                            strict=True)]))
+    # 3. an iteration starts at x from this evaluation: at the base, or at an accepted
+    # trial whose L_A is unchanged; after a failed search or changed multipliers the
+    # next evaluation is at x
+    start = st.base | (ok & ~changed & (st.it < s.max_iters))
     held = (x[-1] <= tau_min + 1e-12) & (gr[-1] > 0)
     grp = gr.at[-1].set(jnp.where(held, 0.0, gr[-1]))
     Hp = jnp.where(held, H.at[-1, :].set(0.0).at[:, -1].set(0.0).at[-1, -1].set(1.0), H)
-    finite = jnp.isfinite(f) & jnp.all(jnp.isfinite(grp)) & jnp.all(jnp.isfinite(Hp))
+    finite = jnp.isfinite(fy) & jnp.all(jnp.isfinite(grp)) & jnp.all(jnp.isfinite(Hp))
     grp = jnp.where(finite, grp, 0.0)
     Hp = jnp.where(finite, Hp, jnp.eye(n))
-    # 3. direction, decrement, convergence at x
     d = _direction(Hp, grp, s.reg)
     theta = -grp @ d
-    scale = 1.0 + jnp.abs(f)
-    lam_t = jax.tree.map(lambda l, g: jnp.maximum(0.0, l - mu * g), mult, st.g)
-    compl = jnp.maximum(jnp.max(lam_t.collision * jnp.abs(st.g.collision), initial=0.0),
-                        jnp.max(lam_t.limits * jnp.abs(st.g.limits), initial=0.0))
-    conv = (theta <= s.tol_stationarity * scale) & (viol <= s.tol_feasibility) & (
+    scale = 1.0 + jnp.abs(fy)
+    lam_t = jax.tree.map(lambda l, gg: jnp.maximum(0.0, l - mu * gg), mult, g)
+    compl = jnp.maximum(jnp.max(lam_t.collision * jnp.abs(g.collision), initial=0.0),
+                        jnp.max(lam_t.limits * jnp.abs(g.limits), initial=0.0))
+    conv = (theta <= s.tol_stationarity * scale) & (_max_violation(g) <= s.tol_feasibility) & (
         compl <= s.tol_complementarity * scale)
-    # 4. capped step and projected Armijo backtracking on L_A
     cap = jnp.minimum(1.0, s.max_step_tau / jnp.maximum(jnp.abs(d[-1]), 1e-300))
     cap = jnp.minimum(
         cap, s.max_step_z / jnp.maximum(jnp.max(jnp.abs(d[:-1]), initial=0.0), 1e-300))
     d = d * cap
-
-    def point(a):
-        xt = x + a * d
-        return xt.at[-1].set(jnp.maximum(xt[-1], tau_min))
-
-    def trial(a):
-        # the constraint values come with the merit: no second pass at the new point
-        xt = point(a)
-        ft, gt = costs.merit_and_constraints(xt, params, structure, kc, mult, mu)
-        ok = jnp.isfinite(ft) & (ft <= f + s.armijo * (grp @ (xt - x)))
-        return ok, ft, gt
-
-    thr = jax.tree.map(lambda l: l / mu, mult)  # g < thr: the AL term is active
-
-    def ls_cond(c):
-        a, k, ok, _, _ = c
-        return (~ok) & (k < s.max_backtracks)
-
-    def ls_body(c):
-        a, k, _, _, gt = c
-        a = jnp.where(k < 0, 1.0, _next_trial(a, st.g, gt, thr, s.kink_overshoot))
-        return (a, k + 1) + trial(a)
-
-    # k = -1: no trial yet.  A lane that converged at x takes none (its step is not
-    # used), so a pool step in which every lane converges skips the trial.
-    a, k, ok, f_try, g_try = jax.lax.while_loop(
-        ls_cond, ls_body, (jnp.asarray(1.0), -1, conv, f, st.g))
-    ok = ok & ~conv
-    x_new = jnp.where(ok, point(a), x)
-    # st.g / st.f hold the constraints and L_A at st.x (invariant), g_try / f_try those
-    # at the accepted point
-    g_new = _tree_where(ok, g_try, st.g)
-    f_new = jnp.where(ok, f_try, f)
-    pending = (theta <= s.inner_tol * scale) | ~ok
-    kkt = jnp.max(jnp.abs(grp))
-    new = _State(x_new, mult, mu, g_new, f_new, viol_ref, pending, st.it + 1, conv | ~finite,
-                 ~finite, kkt, theta)
-    # a converged lane keeps x (its tests were evaluated there)
-    keep = conv | ~finite
-    new = new._replace(x=jnp.where(keep, x, x_new), g=_tree_where(keep, st.g, g_new),
-                       f=jnp.where(keep, f, f_new), it=jnp.where(keep, st.it, st.it + 1))
+    stop = start & (conv | ~finite)  # converged at x (or non-finite): no step
+    search = start & ~stop
+    point = lambda xb, dd, a: (xb + a * dd).at[-1].max(tau_min)
+    # 4. the next evaluation: the first trial of a new search, the next trial, or x
+    a_new = jnp.where(search, 1.0, jnp.where(more, a_next, 0.0))
+    d_new = jnp.where(search, d, st.d)
+    y_new = jnp.where(search | more, point(x, d_new, a_new), x)
+    new = _State(
+        x=x, mult=mult, mu=mu, g=g, f=f_x, viol_ref=viol_ref, pending=pending,
+        it=jnp.where(search, st.it + 1, st.it), done=stop, bad=start & ~finite,
+        kkt=jnp.where(start, jnp.max(jnp.abs(grp)), st.kkt),
+        theta=jnp.where(start, theta, st.theta), base=~(search | more), y=y_new, d=d_new,
+        grad=jnp.where(search, grp, st.grad), a=a_new,
+        k=jnp.where(search, 0, jnp.where(more, st.k + 1, -1)).astype(jnp.int32))
     return _tree_where(st.done, st, new)
 
 
@@ -572,32 +599,26 @@ def _pooled(st_all: _State, lane_all: _Lane, step, C: int, s: SolverSettings) ->
 
 LOCKSTEP_MAX = 32  # batches up to this size start in lockstep (_pooled)
 POOL_CPU = 2  # lanes per step on a CPU (measured on 2 cores: see default_pool)
-POOL_CPU_FEW = 4  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
+POOL_CPU_FEW = 8  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
 FEW_OTHERS = 16  # "few": at most this many other robots per NLP
 
 
 def default_pool(batch: int, backend: str | None = None, n_others: int | None = None) -> int:
-    """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (4)
+    """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (8)
     lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
     robots each (``n_others``: the other-robot slots of an NLP, masked ones included),
     else POOL_CPU (2); B elsewhere.
 
-    Measured on a 2-core CPU (`jaxplan bench solver` NLPs, interleaved in one process):
-    * 64 x 10 cold batch (640 NLPs, 9 others each): 1014 ms with pool 2, 855 with 3,
-      765 with 4, 780 with 6, 794 with 8; its first 64 NLPs 101 / 94 / 88 / 92 ms with
-      2 / 3 / 4 / 6, its first 320 474 / 451 / 414 / 440 ms.  With few others a lane's
-      step is cheap, and a step's fixed cost (~0.13 ms) is shared by more lanes.
-    * 100 robots with 16 neighbours, warm and cold: no difference between 2, 4 and 6
-      beyond the noise; with all 99 others mixed (warm replans 174 / 158 ms with 2 / 4,
-      other warm replans 206 / 272 ms).  Earlier (before the derivatives of 2026-12-01):
-      100 robots with 16 neighbours 62 ms with pool 2, 78 with 1, 92 with 4, 166 with
-      13; with all 99 others 353 ms with 2, 377 with 4, 597 with 13.  Larger pools lose
-      to the lockstep line search (every lane in a step waits for the slowest
-      backtracking) and to caches once the per-pair arrays grow.
-    Small batches (<= LOCKSTEP_MAX) start in lockstep (:func:`_pooled`): that made warm
-    10-, 20- and 30-robot replans 1.22x, 1.25x and 1.5x faster than pool 2 alone
-    (interleaved A/B, bench fleets); their pool (the stragglers') did not matter between
-    2 and 4."""
+    Measured on a 2-core CPU (2026-12-01, one evaluation per step; `jaxplan bench
+    solver` NLPs, each batch split over the two CPU devices, medians of 5 in one
+    process): the 64 x 10 cold batch (9 others) took 139 / 136 / 140 / 141 / 147 / 155 ms
+    with pools 8 / 12 / 16 / 24 / 32 / 48 per device, 100 robots with 16 neighbours
+    163 / 106 / 97 / 121 / 133 ms cold with 2 / 4 / 8 / 16 / 32 (warm 27 / 20 / 20 / 27 /
+    31), with all 99 others 310 / 332 / 457 / 619 ms cold with 2 / 8 / 16 / 32 (warm 58 /
+    72 / 81 / 166).  A step costs a fixed part (XLA's per-kernel overheads) plus a part
+    per lane: wide pools share the fixed part, but once the per-lane arrays grow (many
+    others) caches lose.  Warm 10-robot replans: 2.2-2.5 ms for pools 2-10 (they start
+    in lockstep, :func:`_pooled`)."""
     backend = backend or jax.default_backend()
     if backend != "cpu":
         return batch

@@ -157,6 +157,11 @@ def test_others_hold_or_coast_after_their_end():
     np.testing.assert_allclose(out[0][1, :, 0], [2.0, 3.0])  # hold vs coast
     np.testing.assert_allclose(out[1][1, :, 0], [0.0, 1.0])
     np.testing.assert_allclose(out[0][0, :, 0], [1.0, 1.0])
+    # the derivatives' layout of the same (components first, samples last)
+    jet = costs._jet(costs.prepare_others(tr, jnp.asarray([True, True])), jnp.asarray([1.0, 3.0]),
+                     1)
+    for a, b in zip(jet, out, strict=True):
+        np.testing.assert_allclose(np.moveaxis(np.asarray(a), (0, 1, 2), (2, 1, 0)), b)
 
 
 @pytest.mark.parametrize("So", [1, 3])
@@ -170,10 +175,16 @@ def test_others_derivs_match_trajectory_evaluate(So):
     T = rng.uniform(1.0, 3.0, Mo)
     tr = Trajectory.from_normalized(c, jnp.asarray(T), coast=jnp.asarray([False, True] * 2))
     t = np.concatenate([[-0.5, 0.0], np.linspace(0.0, 3.5, 29), T[:1] * np.arange(So + 1) / So])
-    out = costs._others_derivs(tr, jnp.ones(Mo, bool), jnp.asarray(t), 2)
+    mask = jnp.asarray([True, True, True, False])
+    out = costs._others_derivs(tr, mask, jnp.asarray(t), 2)
+    # the structured derivatives read the same from the prepared layout (N, Mo, K)
+    jet = costs._jet(costs.prepare_others(tr, mask), jnp.asarray(t), 2)
     for r in range(3):
-        ref = np.asarray(tr.evaluate(jnp.clip(jnp.asarray(t), 0.0, None)[:, None], r))
+        ref = np.array(tr.evaluate(jnp.clip(jnp.asarray(t), 0.0, None)[:, None], r))
+        ref[:, 3] = 0.0  # masked: ignored (zeros)
         np.testing.assert_allclose(out[r], ref, rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(np.moveaxis(np.asarray(jet[r]), (0, 1, 2), (2, 1, 0)), ref,
+                                   rtol=1e-10, atol=1e-10)
 
 
 @pytest.mark.parametrize("rest", [False, True])

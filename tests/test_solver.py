@@ -145,13 +145,87 @@ def test_pool_size_does_not_change_results():
         np.testing.assert_allclose(np.asarray(a)[c], np.asarray(b)[c], rtol=1e-9, atol=1e-9)
 
 
+_tb_derivs = jax.jit(lambda x, p, st, m, mu: costs.merit_derivs(
+    x, p, st, costs.kind_constants(p.rest, st), m, mu), static_argnums=2)
+_tb_value = jax.jit(lambda x, p, st, m, mu: costs.merit_and_constraints(
+    x, p, st, costs.kind_constants(p.rest, st), m, mu), static_argnums=2)
+_tb_direction = jax.jit(solver._direction)
+
+
+def _textbook(p, x0, st, s=solver.SolverSettings()):
+    """The AL-SQP loop of solver's module doc written plainly for one NLP: multiplier
+    update, derivatives at x, direction and tests, then merit trials (costs'
+    value path, not the derivatives') until Armijo holds.  (iterations, converged, x)."""
+    p, _ = solver._sanitize(p)
+    tau_min = float(np.log(max(float(p.t_min), 1e-6)))
+    derivs = lambda x, m, mu: _tb_derivs(x, p, st, m, mu)
+    value = lambda x, m, mu: _tb_value(x, p, st, m, mu)
+    direction = _tb_direction
+    x = jnp.asarray(x0).at[-1].max(tau_min)
+    mult, mu = solver.zero_multipliers(p, st), s.mu0
+    _, g = value(x, mult, mu)
+    viol_ref, pending = np.inf, False
+    for it in range(s.max_iters):
+        if pending:  # lam <- max(0, lam - mu g) with the old mu; mu grows on a stall
+            viol = float(solver._max_violation(g))
+            mult = jax.tree.map(lambda l, gg, m0=mu: jnp.maximum(0.0, l - m0 * gg), mult, g)
+            if viol > s.tol_feasibility and viol > s.stall_ratio * viol_ref:
+                mu = min(mu * s.mu_growth, s.mu_max)
+            viol_ref = viol
+        f, gr, H = derivs(x, mult, mu)
+        if x[-1] <= tau_min + 1e-12 and gr[-1] > 0:
+            gr = gr.at[-1].set(0.0)
+            H = H.at[-1, :].set(0.0).at[:, -1].set(0.0).at[-1, -1].set(1.0)
+        d = direction(H, gr, s.reg)
+        theta = float(-gr @ d)
+        scale = 1.0 + abs(float(f))
+        lam_t = jax.tree.map(lambda l, gg, m0=mu: jnp.maximum(0.0, l - m0 * gg), mult, g)
+        compl = max(float(jnp.max(lam_t.collision * jnp.abs(g.collision))),
+                    float(jnp.max(lam_t.limits * jnp.abs(g.limits))))
+        if (theta <= s.tol_stationarity * scale and solver._max_violation(g) <= s.tol_feasibility
+                and compl <= s.tol_complementarity * scale):
+            return it, True, np.asarray(x)
+        d = d * min(1.0, s.max_step_tau / max(abs(float(d[-1])), 1e-300),
+                    s.max_step_z / max(float(jnp.max(jnp.abs(d[:-1]))), 1e-300))
+        a, ok = 1.0, False
+        thr = jax.tree.map(lambda l, m0=mu: l / m0, mult)
+        for _ in range(s.max_backtracks + 1):
+            xt = (x + a * d).at[-1].max(tau_min)
+            ft, gt = value(xt, mult, mu)
+            if np.isfinite(ft) and ft <= f + s.armijo * float(gr @ (xt - x)):
+                ok = True
+                break
+            a = float(solver._next_trial(a, g, gt, thr, s.kink_overshoot))
+        if ok:
+            x, g = xt, gt
+        pending = theta <= s.inner_tol * scale or not ok
+    return s.max_iters, False, np.asarray(x)
+
+
+@pytest.mark.parametrize("mode", ["barrier+constraint", "constraint"])
+def test_one_evaluation_steps_take_the_textbook_iterates(mode):
+    """solver._step evaluates each lane once per step (an accepted trial's derivatives
+    start the next iteration): its iterates, iteration counts and convergence are those
+    of the plain loop, which evaluates derivatives at each iterate and merit values at
+    each trial ("constraint": the multipliers and the penalty change on the way)."""
+    st = NLPStructure(collision=mode)
+    ps = _problems(21, n=4)
+    one = jax.jit(lambda p, x: solver.solve(p, x, st))
+    for p in ps:
+        x0 = solver.initial_guess(p, st)
+        sol = jax.device_get(one(p, x0))
+        it, conv, x = _textbook(p, x0, st)
+        assert (int(sol.iterations), bool(sol.status == solver.CONVERGED)) == (it, conv)
+        np.testing.assert_allclose(sol.x, x, rtol=1e-8, atol=1e-8)
+
+
 def test_default_pool_follows_the_batch_and_its_others():
-    """The automatic pool (measured rule, solver.default_pool): 4 lanes on a CPU for a
+    """The automatic pool (measured rule, solver.default_pool): 8 lanes on a CPU for a
     large batch of NLPs with few others each, 2 otherwise, the whole batch elsewhere;
     never more lanes than the batch has."""
     L, F = solver.LOCKSTEP_MAX, solver.FEW_OTHERS
-    assert solver.default_pool(640, "cpu", n_others=10) == solver.POOL_CPU_FEW == 4
-    assert solver.default_pool(L + 1, "cpu", n_others=F) == 4
+    assert solver.default_pool(640, "cpu", n_others=10) == solver.POOL_CPU_FEW == 8
+    assert solver.default_pool(L + 1, "cpu", n_others=F) == 8
     assert solver.default_pool(L, "cpu", n_others=10) == solver.POOL_CPU == 2
     assert solver.default_pool(640, "cpu", n_others=F + 1) == 2
     assert solver.default_pool(640, "cpu") == 2
