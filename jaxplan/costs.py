@@ -800,32 +800,28 @@ def _affine_jets(fn, tau):
 
 def _chain(z, T, jets, G, Hgg, HgT, GT, HTT):
     """(gradient (n,), Hessian (n, n)) in x = (z, tau) of a sum over samples k of local
-    terms F_k(P_1k, .., P_mk, T) through feature groups P_g = b_g(tau) + z C_g(tau)^T
+    terms F_k(P_1k, .., P_mk, T) through m feature groups P_g = b_g(tau) + z C_g(tau)^T
     (N, K) each and T = exp(tau) (the chain rule of that composition; every factor comes
-    from autodiff).
+    from autodiff).  The groups are stacked on a leading axis.
 
-    jets: per group ((b, C), (b', C'), (b'', C'')) from :func:`_affine_jets`.  G, Hgg,
-    HgT: per group the local gradient (N, K), Hessian (N, N, K) and T cross term (N, K)
-    of F; GT, HTT (K,): its T gradient and curvature.  The local Hessian has no blocks
-    between groups (true of the radial terms here)."""
+    jets: ((b, C), (b', C'), (b'', C'')) from :func:`_affine_jets`, b (m, N, K) and C
+    (m, K, nz).  G, Hgg, HgT: the local gradient (m, N, K), Hessian (m, N, N, K) and T
+    cross term (m, N, K) of F in each group; GT, HTT (K,): its T gradient and curvature.
+    The local Hessian has no blocks between groups (true of the radial terms here)."""
     N, nz = z.shape
-    gz = jnp.zeros((N, nz), z.dtype)
-    gt = jnp.sum(GT) * T
-    hzz = jnp.zeros((N, nz, N, nz), z.dtype)
-    hzt = jnp.zeros((N, nz), z.dtype)
-    htt = jnp.sum(T * T * HTT + T * GT)
-    for ((_, C), (b1, C1), (b2, C2)), Gg, Hg, HT in zip(jets, G, Hgg, HgT, strict=True):
-        pt = b1 + jnp.sum(z[:, :, None] * C1.T[None], axis=1)  # (N, K)
-        ptt = b2 + jnp.sum(z[:, :, None] * C2.T[None], axis=1)
-        Ct = C.T  # (nz, K)
-        gz = gz + jnp.sum(Gg[:, None, :] * Ct[None], axis=-1)
-        gt = gt + jnp.sum(Gg * pt)
-        CC = Ct[:, None, :] * Ct[None, :, :]  # (nz, nz, K)
-        hzz = hzz + jnp.sum(Hg[:, None, :, None, :] * CC[None, :, None, :, :], axis=-1)
-        Hpt = jnp.sum(Hg * pt[None, :, :], axis=1)  # (N, K)
-        hzt = hzt + jnp.sum((Hpt + HT * T)[:, None, :] * Ct[None], axis=-1) + jnp.sum(
-            Gg[:, None, :] * C1.T[None], axis=-1)
-        htt = htt + jnp.sum(pt * Hpt) + 2.0 * T * jnp.sum(HT * pt) + jnp.sum(Gg * ptt)
+    (_, C), (b1, C1), (b2, C2) = jets
+    Ct, C1t, C2t = (jnp.swapaxes(c, 1, 2)[:, None] for c in (C, C1, C2))  # (m, 1, nz, K)
+    pt = b1 + jnp.sum(z[None, :, :, None] * C1t, axis=2)  # (m, N, K)
+    ptt = b2 + jnp.sum(z[None, :, :, None] * C2t, axis=2)
+    gz = jnp.sum(G[:, :, None, :] * Ct, axis=(0, 3))  # (N, nz)
+    gt = jnp.sum(GT) * T + jnp.sum(G * pt)
+    CC = Ct[:, 0, :, None, :] * Ct[:, 0, None, :, :]  # (m, nz, nz, K)
+    hzz = jnp.sum(Hgg[:, :, None, :, None, :] * CC[:, None, :, None, :, :], axis=(0, 5))
+    Hpt = jnp.sum(Hgg * pt[:, None, :, :], axis=2)  # (m, N, K)
+    hzt = (jnp.sum((Hpt + HgT * T)[:, :, None, :] * Ct, axis=(0, 3))
+           + jnp.sum(G[:, :, None, :] * C1t, axis=(0, 3)))
+    htt = (jnp.sum(T * T * HTT + T * GT) + jnp.sum(pt * Hpt) + 2.0 * T * jnp.sum(HgT * pt)
+           + jnp.sum(G * ptt))
     n = N * nz + 1
     H = jnp.zeros((n, n), z.dtype)
     H = H.at[:-1, :-1].set(hzz.reshape(N * nz, N * nz))
@@ -833,89 +829,79 @@ def _chain(z, T, jets, G, Hgg, HgT, GT, HTT):
     return jnp.concatenate([gz.reshape(-1), gt[None]]), H
 
 
-def _e_of_tau(params, structure):
-    return lambda tau: boundary_vector(params, jnp.exp(tau) / structure.segments)
+def _kind_rows(params, structure, name: str, orders):
+    """The basis rows of sample set ``name`` for derivative ``orders`` and the lane's end
+    kind: (apply, C) with apply(e (6, N)) -> (m, N, K) the boundary part B e and C (m, K,
+    nz).  Both kinds' constants are applied in one matrix product (for all lanes under
+    vmap; a per-lane matrix would be a batched product of small matrices) and the lane's
+    result selected."""
+    b = basis(structure)
+    both = np.stack([np.stack([getattr(k, name)[r] for r in orders]) for k in (b.free, b.rest)])
+    m, K = len(orders), both.shape[2]  # both: (2, m, K, 6 + nz)
+    Bm = jnp.asarray(both[..., :6].reshape(-1, 6))
+    rest = jnp.asarray(params.rest, bool)
 
+    def apply(e):
+        out = (Bm @ e).reshape(2, m, K, -1)
+        return jnp.swapaxes(jnp.where(rest, out[1], out[0]), 1, 2)
 
-def _kind_rows(params, name: str, r: int):
-    """(B (K, 6) applied as a function e (6, N) -> (N, K), C (K, nz)) of the sample set
-    ``name`` of the basis, derivative r, for the lane's end kind: both kinds' constants
-    are applied (one matrix product for all lanes under vmap, where a per-lane matrix
-    would be a batched product of small matrices) and the lane's result selected."""
-    def rows(structure):
-        b = basis(structure)
-        both = np.stack([getattr(b.free, name)[r], getattr(b.rest, name)[r]])  # (2, K, 6+nz)
-        Bm = jnp.asarray(both[:, :, :6].reshape(-1, 6))
-        K = both.shape[1]
-        rest = jnp.asarray(params.rest, bool)
-
-        def apply(e):
-            out = (Bm @ e).reshape(2, K, -1)
-            return jnp.where(rest, out[1], out[0]).T
-
-        C = jnp.where(rest, jnp.asarray(both[1, :, 6:]), jnp.asarray(both[0, :, 6:]))
-        return apply, C
-    return rows
+    return apply, jnp.where(rest, jnp.asarray(both[1, ..., 6:]), jnp.asarray(both[0, ..., 6:]))
 
 
 def _lim_jets(params, structure, name, tau):
     """Jets of the velocity, acceleration and jerk features at the basis sample set
-    ``name`` ("quad" or "lim"): three groups, Y_r = (B_r e(h) + C_r z) / h^r."""
+    ``name`` ("quad" or "lim"): three stacked groups, Y_r = (B_r e(h) + C_r z) / h^r."""
     S = structure.segments
-    e_of = _e_of_tau(params, structure)
+    apply, C = _kind_rows(params, structure, name, (1, 2, 3))
+    r = jnp.arange(1, 4, dtype=jnp.float64)[:, None, None]
 
-    def fn(r):
-        apply, C = _kind_rows(params, name, r)(structure)
+    def f(t):
+        h = jnp.exp(t) / S
+        sc = h ** -r
+        return apply(boundary_vector(params, h)) * sc, C * sc
 
-        def f(t):
-            h = jnp.exp(t) / S
-            return apply(e_of(t)) / h**r, C / h**r
-        return f
-
-    return [_affine_jets(fn(r), tau) for r in (1, 2, 3)]
+    return _affine_jets(f, tau)
 
 
 def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
     """Value, gradient and Hessian of the soft limits (``w`` the quadrature weights) or of
-    the hard-limit AL terms (``lam`` (K, 3)) through their three radial feature groups."""
+    the hard-limit AL terms (``lam`` (K, 3)) through their three radial feature groups;
+    and the features Y (3, N, K)."""
     lim = params.limits
-    Y = [b + jnp.sum(z[:, :, None] * C.T[None], axis=1) for (b, C), _, _ in jets]  # (N, K)
-    val = 0.0
-    G, Hgg, HgT = [], [], []
-    GT = 0.0
+    (b, C), _, _ = jets
+    Y = b + jnp.sum(z[None, :, :, None] * jnp.swapaxes(C, 1, 2)[:, None], axis=2)  # (3, N, K)
+    rho = jnp.sum(Y * Y, axis=1)  # (3, K)
+    tm2 = (jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2)[:, None]
+    K = Y.shape[-1]
+    if soft:
+        av, a1, a2 = _d012(lambda rr: params.weights.q_lim * w * sexp(rr - tm2), rho)
+        cd, cdd = T * a1, T * a2
+        val = T * jnp.sum(av)
+        GT = jnp.sum(av, axis=0)
+        HgT = 2.0 * a1[:, None] * Y
+    else:
+        bv, cd, cdd = _d012(lambda rr: al_term(1.0 - rr / tm2, lam.T, mu), rho)
+        val = jnp.sum(bv)
+        GT = jnp.zeros(K, z.dtype)
+        HgT = jnp.zeros_like(Y)
     N = z.shape[0]
-    eye = jnp.eye(N, dtype=z.dtype)[:, :, None]
-    for r, (Yr, tmax) in enumerate(zip(Y, (lim.v_max, lim.a_max, lim.j_max), strict=True)):
-        rho = jnp.sum(Yr * Yr, axis=0)  # (K,)
-        if soft:
-            av, a1, a2 = _d012(lambda rr, tm=tmax: params.weights.q_lim * w * sexp(rr - tm**2), rho)
-            cd, cdd = T * a1, T * a2
-            val = val + T * jnp.sum(av)
-            GT = GT + av
-            HgT.append(2.0 * a1 * Yr)
-        else:
-            bv, cd, cdd = _d012(lambda rr, tm=tmax, r=r: al_term(1.0 - rr / tm**2, lam[:, r], mu),
-                                rho)
-            val = val + jnp.sum(bv)
-            HgT.append(jnp.zeros_like(Yr))
-        G.append(2.0 * cd * Yr)
-        Hgg.append(4.0 * cdd * Yr[:, None, :] * Yr[None, :, :] + 2.0 * cd * eye)
-    K = Y[0].shape[-1]
-    GT = jnp.broadcast_to(GT, (K,)) if soft else jnp.zeros(K, z.dtype)
+    G = 2.0 * cd[:, None] * Y
+    Hgg = (4.0 * cdd[:, None, None] * Y[:, :, None] * Y[:, None, :]
+           + 2.0 * cd[:, None, None] * jnp.eye(N, dtype=z.dtype)[:, :, None])
     g, H = _chain(z, T, jets, G, Hgg, HgT, GT, jnp.zeros(K, z.dtype))
     return val, g, H, Y
 
 
 def _col_jets(params, structure, kc, tau):
-    """Jets of the own positions at the collision rows (samples, then the coast)."""
+    """Jets of the own positions at the collision rows (samples, then the coast): one
+    group (1, N, K)."""
     S = structure.segments
-    e_of = _e_of_tau(params, structure)
     n = structure.n_coast
-    apply, C0 = _kind_rows(params, "col", 0)(structure)
+    apply, C0 = _kind_rows(params, structure, "col", (0,))
 
     def f(t):
-        e = e_of(t)
-        b = apply(e)  # (N, Kc)
+        e = boundary_vector(params, jnp.exp(t) / S)
+        b = apply(e)  # (1, N, Kc)
         C = C0
         if n:
             h = jnp.exp(t) / S
@@ -923,8 +909,8 @@ def _col_jets(params, structure, kc, tau):
             E0, E1 = kc.end[0, 0], kc.end[1, 0]
             be = (E0[:6] @ e)[:, None] + (E1[:6] @ e)[:, None] * (tc / h)[None, :]
             Ce = E0[None, 6:] + (tc / h)[:, None] * E1[None, 6:]
-            b = jnp.concatenate([b, be], axis=1)
-            C = jnp.concatenate([C, Ce], axis=0)
+            b = jnp.concatenate([b, be[None]], axis=2)
+            C = jnp.concatenate([C, Ce[None]], axis=1)
         return b, C
 
     return _affine_jets(f, tau)
@@ -959,7 +945,7 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu, with_g: bool =
         s, off, w, on = _col_samples(params, structure)
         jets = _col_jets(params, structure, kc, tau)
         (bp, C), _, _ = jets
-        p = bp + jnp.sum(z[:, :, None] * C.T[None], axis=1)  # (N, K)
+        p = bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)  # (N, K)
         o0, o1, o2 = _jet(op, T * s + off, 2)  # (N, Mo, K)
         X = p[:, None, :] - o0
         u = -s * o1
@@ -996,7 +982,7 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu, with_g: bool =
         HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1) * X + 2.0 * cd * u, axis=1)
         q = jnp.sum(u * u + X * ww, axis=0)
         HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * q + 4.0 * a1 * Xu, axis=0)
-        g, H = _chain(z, T, [jets], [Gp], [Hpp], [HpT], GT, HTT)
+        g, H = _chain(z, T, jets, Gp[None], Hpp[None], HpT[None], GT, HTT)
         tv, tg, tH = tv + v, tg + g, tH + H
     if structure.hard_limits:
         jh = _lim_jets(params, structure, "lim", tau)
@@ -1004,8 +990,8 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu, with_g: bool =
         tv, tg, tH = tv + v, tg + g, tH + H
         if with_g:
             lim = params.limits
-            gh = jnp.stack([1.0 - jnp.sum(Y * Y, axis=0) / tm**2 for Y, tm in
-                            zip(Yh, (lim.v_max, lim.a_max, lim.j_max), strict=True)], axis=-1)
+            tm2 = jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2
+            gh = (1.0 - jnp.sum(Yh * Yh, axis=1) / tm2[:, None]).T
     if with_g:
         return tv, tg, tH, Multipliers(gc, gh)
     return tv, tg, tH

@@ -55,6 +55,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxplan import solver as slv
 from jaxplan.costs import Limits, Multipliers, NLPParams, NLPStructure, Weights
@@ -95,9 +96,11 @@ class PlannerStructure:
     solver_pool: int = 0
 
     def others(self, M: int) -> int:
-        """Other-robot slots in each NLP of an M-robot fleet (M: the fleet, padded)."""
+        """Other-robot slots in each NLP of an M-robot fleet (M: the fleet, padded): K
+        (``max_neighbors``) when that is fewer than the M - 1 others, else M - 1: every
+        other robot, the robot itself left out (at least one slot, masked, for M = 1)."""
         K = self.max_neighbors
-        return K if 0 < K < M - 1 else M
+        return K if 0 < K < M - 1 else max(M - 1, 1)
 
 
 class FleetParams(NamedTuple):
@@ -281,13 +284,14 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     other_radius = fp.radius[None, :] + inflate
     Mo = structure.others(M)
     mult_prev = ps.multipliers
-    if Mo < M:
+    if Mo < M - 1:
         preds, other_radius, other_mask, idx = select_neighbors(preds, other_radius,
                                                                 other_mask, Mo)
         mult_prev = mult_prev._replace(
             collision=remap_slots(mult_prev.collision, ps.neighbors, idx))
-    else:
-        idx = jnp.broadcast_to(jnp.arange(M, dtype=jnp.int32), (M, M))
+    else:  # every other robot, in a fixed order (the multipliers stay in their slots)
+        idx = jnp.asarray(all_others(M))
+        preds, other_radius, other_mask = take_slots((preds, other_radius, other_mask), idx)
     params = NLPParams(
         p0=p, v0=v, a0=a, goal_p=goal_p, goal_v=goal_v, goal_a=jnp.zeros_like(p), rest=rest,
         others=preds, other_radius=other_radius, other_mask=other_mask,
@@ -455,13 +459,28 @@ NEIGHBOR_HORIZON_S = (1.0, 10.0)  # s: the window nearest_neighbors looks over (
 NEIGHBOR_SAMPLES = 16
 
 
+def all_others(M: int) -> np.ndarray:
+    """(M, max(M - 1, 1)) int32: robot i's other-robot slots hold 0 .. M - 1 but i, in
+    order (one robot: its one slot holds itself, masked)."""
+    if M == 1:
+        return np.zeros((1, 1), np.int32)
+    j = np.arange(M - 1)[None, :]
+    return (j + (j >= np.arange(M)[:, None])).astype(np.int32)
+
+
+def take_slots(tree, idx):
+    """Every leaf (M, M, ...) of ``tree`` at the other-robot slots idx (M, Mo)."""
+    take = lambda u: jnp.take_along_axis(u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)),
+                                         axis=1)
+    return jax.tree.map(take, tree)
+
+
 def select_neighbors(preds: Trajectory, other_radius, mask, K: int):
     """Keep each robot's K nearest others (:func:`nearest_neighbors`): the predictions
     (M, K), radii (M, K) and mask (M, K) of the kept slots, and their indices (M, K)."""
     idx = nearest_neighbors(preds, other_radius, mask, K)
-    take = lambda u: jnp.take_along_axis(u, idx.reshape(idx.shape + (1,) * (u.ndim - 2)),
-                                         axis=1)
-    return jax.tree.map(take, preds), take(other_radius), take(mask), idx
+    preds, other_radius, mask = take_slots((preds, other_radius, mask), idx)
+    return preds, other_radius, mask, idx
 
 
 def nearest_neighbors(preds: Trajectory, other_radius, mask, K: int):

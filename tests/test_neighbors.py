@@ -12,6 +12,7 @@ from jaxplan.planner import (
     NEIGHBOR_HORIZON_S,
     NEIGHBOR_SAMPLES,
     PlannerStructure,
+    all_others,
     fresh_views,
     nearest_neighbors,
     predict_views,
@@ -60,8 +61,14 @@ def test_nearest_neighbors_match_brute_force():
 
 def test_structure_slots():
     s = PlannerStructure(max_neighbors=4)
-    assert s.others(10) == 4 and s.others(5) == 5 and s.others(4) == 4
-    assert PlannerStructure().others(100) == 100
+    assert s.others(10) == 4 and s.others(5) == 4 and s.others(4) == 3
+    assert PlannerStructure().others(100) == 99 and PlannerStructure().others(1) == 1
+    # without a neighbour limit robot i's slots hold every other robot, in order
+    for M in (1, 2, 5):
+        idx = all_others(M)
+        assert idx.shape == (M, max(M - 1, 1))
+        for i in range(M):
+            assert list(idx[i]) == ([j for j in range(M) if j != i] or [0])
 
 
 BOX = """

@@ -152,6 +152,59 @@ _tb_value = jax.jit(lambda x, p, st, m, mu: costs.merit_and_constraints(
 _tb_direction = jax.jit(solver._direction)
 
 
+def test_directions_by_cholesky_where_it_settles_them_else_eigh():
+    """solver._directions gives what _direction (eigh, eigenvalues floored at reg x the
+    largest) gives, for positive definite, nearly singular, indefinite and non-finite
+    Hessians alike; Cholesky is used only where no eigenvalue would be floored (checked
+    against numpy's eigenvalues), the rest goes to eigh."""
+    rng = np.random.default_rng(5)
+    n, reg = 7, 1e-13
+    mats = []
+    for kind in range(5):
+        for _ in range(6):
+            A = rng.normal(size=(n, n))
+            if kind == 0:  # positive definite, well conditioned
+                H = A @ A.T + 0.5 * np.eye(n)
+            elif kind == 1:  # positive definite, eigenvalues 1e-16 .. 1 (some floored)
+                Q = np.linalg.qr(A)[0]
+                H = Q @ np.diag(np.logspace(-16, 0, n)) @ Q.T
+            elif kind == 2:  # indefinite
+                H = A + A.T
+            elif kind == 3:  # positive definite with a large penalty direction
+                u = rng.normal(size=n)
+                H = A @ A.T + 0.1 * np.eye(n) + 1e10 * np.outer(u, u)
+            else:  # positive semidefinite: singular
+                B = rng.normal(size=(n, 3))
+                H = B @ B.T
+            mats.append(H)
+    H = jnp.asarray(np.stack(mats))
+    g = jnp.asarray(rng.normal(size=(len(mats), n)))
+    need = jnp.asarray(rng.uniform(size=len(mats)) < 0.8)
+    d = np.asarray(jax.jit(solver._directions)(H, g, need, reg))
+    ref = np.asarray(jax.jit(jax.vmap(lambda h, gg: solver._direction(h, gg, reg)))(H, g))
+    assert np.all(np.isfinite(d))
+    # the Cholesky test is sufficient: where it passes, no eigenvalue is floored
+    L, pd = solver._cholesky(H)
+    well = np.asarray(pd & (solver._inverse_norm2(L) * jnp.sqrt(jnp.sum(H**2, axis=(1, 2)))
+                            * reg <= 1.0))
+    w = np.linalg.eigvalsh(np.asarray(H))
+    assert np.all(w[well].min(axis=1) >= reg * np.abs(w[well]).max(axis=1))
+    assert well[:6].all() and not well[12:18].any()  # kinds 0 and 2
+    assert 0 < well.sum() < len(mats)
+    Hn, gn = np.asarray(H), np.asarray(g)
+    for i in np.flatnonzero(np.asarray(need)):
+        if well[i]:  # the Newton step -H^-1 g, to the rounding of a backward-stable solve
+            res = np.linalg.norm(Hn[i] @ d[i] + gn[i])
+            assert res <= 1e-12 * (np.linalg.norm(Hn[i]) * np.linalg.norm(d[i])
+                                   + np.linalg.norm(gn[i]))
+            assert np.linalg.norm(d[i] - ref[i]) <= 1e-4 * np.linalg.norm(ref[i])  # (cond 1e11)
+        else:  # eigh's own step
+            np.testing.assert_allclose(d[i], ref[i], rtol=1e-12, atol=0)
+    # non-finite lanes never reach it (the step sanitizes H), but it stays finite
+    Hb = H.at[0].set(jnp.nan)
+    assert np.all(np.isfinite(np.asarray(solver._directions(Hb, g, need.at[0].set(False), reg))))
+
+
 def _textbook(p, x0, st, s=solver.SolverSettings()):
     """The AL-SQP loop of solver's module doc written plainly for one NLP: multiplier
     update, derivatives at x, direction and tests, then merit trials (costs'

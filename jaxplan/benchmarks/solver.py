@@ -95,8 +95,9 @@ def index_params(p: NLPParams, i) -> NLPParams:
 
 def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=None,
                  t_min=0.1, max_neighbors: int = 0, return_neighbors: bool = False):
-    """The M NLPs of one fleet replan: robot i sees all M predictions (w = 1, the paper's
-    prediction), itself masked out.  pos, vel, acc, goals: (M, N).
+    """The M NLPs of one fleet replan: robot i sees the other M - 1 robots' predictions
+    (w = 1, the paper's prediction), in the planner's slots
+    (:func:`jaxplan.planner.all_others`).  pos, vel, acc, goals: (M, N).
 
     max_neighbors K > 0: each NLP holds only the K others that
     :func:`jaxplan.planner.nearest_neighbors` picks (as the planner does with
@@ -112,6 +113,9 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     idx = jnp.broadcast_to(jnp.arange(M), (M, M))
     if 0 < max_neighbors < M - 1:
         others, orad, mask, idx = _select(others, orad, mask, max_neighbors)
+    else:
+        idx = jnp.asarray(_planner.all_others(M))
+        others, orad, mask = _planner.take_slots((others, orad, mask), idx)
     w = w if w is not None else weights()
     lim = lim if lim is not None else limits()
     bc = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float64), (M,))
