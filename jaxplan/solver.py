@@ -240,41 +240,52 @@ def eigh_chunk(n: int) -> int:
     return max(1, (_LAPACK_SPLIT_COST - 1) // (_EIGH_COST * n ** 3))
 
 
-@jax.custom_batching.custom_vmap
+def _lapack_safe(fn):
+    """``fn`` of one matrix (n, n) (first argument; LAPACK inside) made safe to vmap on a
+    CPU: under vmap the batch goes to LAPACK in calls of at most eigh_chunk(n) matrices
+    (cheaper kernels than eigh's split later, so its bound covers them), which jaxlib
+    runs on the calling thread (see _LAPACK_SPLIT_COST); elsewhere (a GPU) one batched
+    call.  The results are those of the batched call: LAPACK treats each matrix alone.
+    Every argument must be batched along with the matrix."""
+    safe = jax.custom_batching.custom_vmap(fn)
+
+    @safe.def_vmap
+    def rule(axis_size, in_batched, *args):
+        if not any(in_batched):
+            out = safe(*args)
+            return out, jax.tree.map(lambda _: False, out)
+        args = [a if b else jnp.broadcast_to(a, (axis_size,) + jnp.shape(a))
+                for a, b in zip(args, in_batched, strict=True)]
+        many = jax.vmap(fn)
+        n = args[0].shape[-1]
+
+        def in_chunks(*args):
+            k = eigh_chunk(n)
+            if k >= axis_size:
+                return many(*args)
+            parts = -(-axis_size // k)
+            if parts <= UNROLL_EIGH:
+                outs = [many(*(a[i:i + k] for a in args)) for i in range(0, axis_size, k)]
+                return jax.tree.map(lambda *o: jnp.concatenate(o), *outs)
+            pad = parts * k - axis_size  # padded with copies of the first lane
+            padded = [jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad,) + a.shape[1:])])
+                      for a in args]
+            out = jax.lax.map(lambda xs: many(*xs),
+                              [a.reshape((parts, k) + a.shape[1:]) for a in padded])
+            return jax.tree.map(lambda o: o.reshape((parts * k,) + o.shape[2:])[:axis_size],
+                                out)
+
+        out = jax.lax.platform_dependent(*args, cpu=in_chunks, default=many)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return safe
+
+
+@_lapack_safe
 def _eigh(H):
-    """(eigenvalues, eigenvectors) of the symmetric H (n, n) by jnp.linalg.eigh.
-
-    Under vmap on a CPU the batch goes to LAPACK in calls of at most eigh_chunk(n)
-    matrices, which the kernel runs on the calling thread (see _LAPACK_SPLIT_COST);
-    elsewhere (a GPU) as one batched call.  The results are those of the batched call:
-    LAPACK treats each matrix alone."""
+    """(eigenvalues, eigenvectors) of the symmetric H (n, n) by jnp.linalg.eigh (LAPACK
+    syevd on a CPU, batched safely: :func:`_lapack_safe`)."""
     return tuple(jnp.linalg.eigh(H))
-
-
-@_eigh.def_vmap
-def _eigh_vmap(axis_size, in_batched, H):
-    if not in_batched[0]:
-        return _eigh(H), (False, False)
-
-    def in_chunks(H):
-        k = eigh_chunk(H.shape[-1])
-        if k >= axis_size:
-            return tuple(jnp.linalg.eigh(H))
-        parts = -(-axis_size // k)
-        if parts <= UNROLL_EIGH:
-            w, V = zip(*(jnp.linalg.eigh(H[i:i + k]) for i in range(0, axis_size, k)),
-                       strict=True)
-            return jnp.concatenate(w), jnp.concatenate(V)
-        Hp = jnp.concatenate([H, jnp.broadcast_to(jnp.eye(H.shape[-1], dtype=H.dtype),
-                                                  (parts * k - axis_size,) + H.shape[1:])])
-        w, V = jax.lax.map(lambda h: tuple(jnp.linalg.eigh(h)),
-                           Hp.reshape((parts, k) + H.shape[1:]))
-        return (w.reshape((parts * k,) + w.shape[2:])[:axis_size],
-                V.reshape((parts * k,) + V.shape[2:])[:axis_size])
-
-    out = jax.lax.platform_dependent(H, cpu=in_chunks,
-                                     default=lambda H: tuple(jnp.linalg.eigh(H)))
-    return out, (True, True)
 
 
 def _direction(H, grad, reg):
@@ -294,67 +305,25 @@ def _direction(H, grad, reg):
     return d
 
 
-def _cholesky(H):
-    """Lower Cholesky factor L of each of a batch H (B, n, n), as rows of (B,) arrays
-    (L[i][j], j <= i: written out entry by entry, so that XLA fuses the whole
-    factorization into a few elementwise loops over the batch: LAPACK's potrf / syevd
-    cost ~0.4 / ~3.6 us per 7 x 7 matrix on a 2-core CPU, this ~0.1), and whether each
-    H is positive definite (where not, its factor is garbage, but finite)."""
+@_lapack_safe
+def _newton_cholesky(H, grad, reg):
+    """(d, settled) for one H (n, n): the Newton step d = -H^-1 grad by Cholesky (LAPACK
+    potrf and a triangular inverse: ~0.2-2 us per 7 x 7 - 16 x 16 matrix on a 2-core
+    CPU, against ~6-23 us for syevd), and whether it is :func:`_direction`'s step: H
+    positive definite with lambda_min >= reg * lambda_max, so that no eigenvalue is
+    floored.  That is checked without eigenvalues: lambda_max <= |H|_F and lambda_min
+    >= 1 / trace(H^-1) = 1 / |L^-1|_F^2.  Where not settled, d is 0."""
     n = H.shape[-1]
-    L = [[None] * n for _ in range(n)]
-    ok = jnp.ones(H.shape[0], bool)
-    for j in range(n):
-        sjj = H[:, j, j]
-        for k in range(j):
-            sjj = sjj - L[j][k] * L[j][k]
-        ok = ok & (sjj > 0)
-        L[j][j] = jnp.sqrt(jnp.where(sjj > 0, sjj, 1.0))
-        for i in range(j + 1, n):
-            t = H[:, i, j]
-            for k in range(j):
-                t = t - L[i][k] * L[j][k]
-            L[i][j] = t / L[j][j]
-    return L, ok
-
-
-def _lower_solve(L, b):
-    """L^-1 b for L from :func:`_cholesky` and b a list of n (B,) arrays."""
-    y = []
-    for i in range(len(b)):
-        acc = b[i]
-        for k in range(i):
-            acc = acc - L[i][k] * y[k]
-        y.append(acc / L[i][i])
-    return y
-
-
-def _upper_solve(L, b):
-    """L^-T b for L from :func:`_cholesky` and b a list of n (B,) arrays."""
-    n = len(b)
-    x = [None] * n
-    for i in reversed(range(n)):
-        acc = b[i]
-        for k in range(i + 1, n):
-            acc = acc - L[k][i] * x[k]
-        x[i] = acc / L[i][i]
-    return x
-
-
-def _inverse_norm2(L):
-    """|L^-1|_F^2 for L from :func:`_cholesky` (forward substitution on the identity)."""
-    n = len(L)
-    total = 0.0
-    for c in range(n):  # column c of L^-1: zero above the diagonal
-        y = [None] * n
-        for i in range(c, n):
-            acc = (1.0 / L[i][i]) if i == c else 0.0
-            if i > c:
-                for k in range(c, i):
-                    acc = acc - L[i][k] * y[k]
-                acc = acc / L[i][i]
-            y[i] = acc
-            total = total + y[i] * y[i]
-    return total
+    eye = jnp.eye(n, dtype=H.dtype)
+    L = jnp.linalg.cholesky(H)  # NaN where H is not positive definite
+    pd = jnp.all(jnp.isfinite(L))
+    L = jnp.where(pd, L, eye)
+    Li = jax.scipy.linalg.solve_triangular(L, eye, lower=True)
+    settled = pd & (jnp.sum(Li * Li) * jnp.sqrt(jnp.sum(H * H)) * reg <= 1.0)
+    y = jax.scipy.linalg.solve_triangular(L, grad, lower=True)
+    d = -jax.scipy.linalg.solve_triangular(L, y, lower=True, trans=1)
+    return jnp.where(settled & jnp.all(jnp.isfinite(d)), d, 0.0), settled & jnp.all(
+        jnp.isfinite(d))
 
 
 EIGH_CHUNK = 2  # _directions: matrices per eigh call where Cholesky does not settle it
@@ -372,10 +341,7 @@ def _directions(H, grad, need, reg):
     that runs as many times as they need, so a batch pays an eigendecomposition only
     for them (on a CPU it costs ~40x the Cholesky)."""
     B, n = grad.shape
-    L, pd = _cholesky(H)
-    well = pd & (_inverse_norm2(L) * jnp.sqrt(jnp.sum(H**2, axis=(1, 2))) * reg <= 1.0)
-    d = -jnp.stack(_upper_solve(L, _lower_solve(L, [grad[:, i] for i in range(n)])), axis=1)
-    d = jnp.where(well[:, None], d, 0.0)
+    d, well = jax.vmap(_newton_cholesky, in_axes=(0, 0, None))(H, grad, reg)
     use = need & ~well
     order = jnp.argsort(~use, stable=True)  # the lanes that need eigh first
     cnt = jnp.sum(use, dtype=jnp.int32)

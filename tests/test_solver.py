@@ -184,9 +184,8 @@ def test_directions_by_cholesky_where_it_settles_them_else_eigh():
     ref = np.asarray(jax.jit(jax.vmap(lambda h, gg: solver._direction(h, gg, reg)))(H, g))
     assert np.all(np.isfinite(d))
     # the Cholesky test is sufficient: where it passes, no eigenvalue is floored
-    L, pd = solver._cholesky(H)
-    well = np.asarray(pd & (solver._inverse_norm2(L) * jnp.sqrt(jnp.sum(H**2, axis=(1, 2)))
-                            * reg <= 1.0))
+    _, well = jax.vmap(solver._newton_cholesky, in_axes=(0, 0, None))(H, g, reg)
+    well = np.asarray(well)
     w = np.linalg.eigvalsh(np.asarray(H))
     assert np.all(w[well].min(axis=1) >= reg * np.abs(w[well]).max(axis=1))
     assert well[:6].all() and not well[12:18].any()  # kinds 0 and 2
@@ -363,20 +362,20 @@ def test_cpu_device_count_from_the_environment(monkeypatch):
             jaxplan._cpu_device_count()
 
 
-def _eigh_batches(lowered):
-    """(batch, n) of every LAPACK eigh call in a lowered program."""
+def _eigh_batches(lowered, kernels=("lapack_dsyevd",)):
+    """(batch, n) of every call of the LAPACK ``kernels`` in a lowered program."""
     import re
-    calls = [ln for ln in lowered.as_text().splitlines() if "lapack_dsyevd" in ln]
-    return [tuple(int(v) for v in re.search(r": \(tensor<(\d+)x(\d+)x\d+xf64>\)", ln).groups())
+    calls = [ln for ln in lowered.as_text().splitlines() if any(k in ln for k in kernels)]
+    return [tuple(int(v) for v in re.search(r": \(tensor<(\d+)x(\d+)x\d+xf64>", ln).groups())
             for ln in calls]
 
 
 def test_cpu_eigh_calls_never_split_their_batch():
-    """jaxlib 0.10's batched LAPACK eigh splits a batch of more than one matrix costing
-    batch x 5 n^3 >= 2e5 over XLA's CPU thread pool and blocks a pool thread while it
-    waits; two such solves at once deadlock (solver._eigh).  So every eigh call the
-    solver compiles for the CPU stays below that, and the chunked eigh returns what one
-    batched call returns."""
+    """jaxlib 0.10's batched LAPACK kernels (eigh; Cholesky alike) split a batch of more
+    than one matrix costing batch x 5 n^3 >= 2e5 over XLA's CPU thread pool and block a
+    pool thread while they wait; two such solves at once deadlock (solver._lapack_safe).
+    So every such call the solver compiles for the CPU stays below that, and the chunked
+    eigh returns what one batched call returns."""
     # a call of one matrix never splits, whatever its size
     ok = lambda b, n: b == 1 or b * solver._EIGH_COST * n ** 3 < solver._LAPACK_SPLIT_COST
     rng = np.random.default_rng(3)
@@ -405,6 +404,10 @@ def test_cpu_eigh_calls_never_split_their_batch():
         assert sizes and all(m == st.n_x and ok(b, m) for b, m in sizes), (st, sizes)
         if n_lanes == 10 and st.segments == 2:  # as one call this batch would split
             assert not ok(n_lanes, st.n_x)
+        # the Cholesky steps' LAPACK calls (potrf, trsm) split their batches alike, and
+        # the same bound keeps them whole (their kernels are cheaper than syevd's)
+        chol = _eigh_batches(lowered, ("lapack_dpotrf", "lapack_dtrsm"))
+        assert chol and all(m == st.n_x and ok(b, m) for b, m in chol), (st, chol)
 
 
 _THREADS = """
@@ -512,7 +515,10 @@ def test_solution_is_differentiable_in_the_weights():
     assert sol.status == solver.MAX_ITERS and sol.decrement < 1e-20  # converged to rounding
     jac = jax.jit(jax.jacrev(lambda a, b: out(a, b, sol.x)[0], argnums=(0, 1)))(*q)
     for k, qk in enumerate(q):
-        h = 1e-4 * float(qk)
+        # central differences: truncation ~ (h / q)^2 ~ 1e-7 relative; rounding ~ the
+        # solves' own error (up to ~1e-10 in log T at tol 0 after 80 iterations) / h:
+        # ~3e-6 relative here (with h = 1e-4 q it reached 2e-5, at the tolerance)
+        h = 3e-4 * float(qk)
         up = list(q)
         dn = list(q)
         up[k], dn[k] = qk + h, qk - h
