@@ -138,7 +138,7 @@ class PlannerConfig:
     NLP: a free-end plan may then arrive at speed with a robot just beyond its goal).
     solver_pool (>= 0): how many robots' NLPs the solver steps at once in a replan
     (jaxplan.solver.solve_lanes); 0 = automatic (jaxplan.solver.default_pool): 2 on a
-    CPU (8 for more than 32 robots with at most 16 others per NLP), all M elsewhere.
+    CPU (12 for more than 32 robots with at most 16 others per NLP), all M elsewhere.
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
     """

@@ -727,7 +727,7 @@ class OthersPrep(NamedTuple):
     components first and the other robots before the sample axis, non-finite or masked
     ones zeroed."""
 
-    c: jax.Array  # (3, N, So, Mo, Kd): d^r/dt^r coefficients in the segment's s (zero-padded)
+    c: tuple  # r = 0, 1, 2: (N, So, Mo, Kd - r) d^r/dt^r coefficients in the segment's s
     lo: jax.Array  # (So, Mo) segment start, s
     he: jax.Array  # (So, Mo) segment length (1 where zero)
     pos: jax.Array  # (So, Mo) bool: the segment has a positive length
@@ -742,28 +742,28 @@ def prepare_others(others: Trajectory, mask) -> OthersPrep:
     c = others.coeffs
     b = others.breaks
     ok = mask & jnp.all(jnp.isfinite(c), axis=(-1, -2, -3)) & jnp.all(jnp.isfinite(b), axis=-1)
-    c = jnp.where(ok[:, None, None, None], c, 0.0)  # (Mo, So, N, Kd)
     b = jnp.where(ok[:, None], b, 0.0)
     So, N, Kd = c.shape[-3:]
     lo, hi = b[:, :-1].T, b[:, 1:].T  # (So, Mo)
     h = hi - lo
     he = jnp.where(h > 0, h, 1.0)
-    cc = jnp.moveaxis(c, (2, 1, 0), (0, 1, 2))  # (N, So, Mo, Kd)
+    cc = jnp.where(ok[None, None, :, None], jnp.transpose(c, (2, 1, 0, 3)), 0.0)  # (N, So, Mo, Kd)
     rows = []
     for r in range(3):
-        f = np.array([_falling(i, r) for i in range(r, Kd)] + [0] * min(r, Kd), float)[:Kd]
-        cr = jnp.concatenate([cc[..., r:], jnp.zeros(cc.shape[:-1] + (min(r, Kd),), c.dtype)],
-                             axis=-1)[..., :Kd]
-        rows.append(cr * f / (he[None, :, :, None] ** r))
+        if r >= Kd:
+            rows.append(jnp.zeros(cc.shape[:-1] + (1,), c.dtype))
+            continue
+        f = np.array([_falling(i, r) for i in range(r, Kd)], float)
+        rows.append(cc[..., r:] * f / (he[None, :, :, None] ** r))
     brk = b[:, 1:So].T if So > 1 else jnp.zeros((1, b.shape[0]), b.dtype)
-    return OthersPrep(jnp.stack(rows), lo, he, h > 0, brk, b[:, -1], others.coast)
+    return OthersPrep(tuple(rows), lo, he, h > 0, brk, b[:, -1], others.coast)
 
 
 def _jet(op: OthersPrep, t, R: int):
     """The others' derivatives 0..R at times t (K,): a list of (N, Mo, K) arrays (what
     :func:`_others_derivs` gives, laid out components first and samples last).  After an
     other's end it holds (coast False) or coasts (coast True)."""
-    So, Kd = op.c.shape[2], op.c.shape[-1]
+    So = op.c[0].shape[1]
     tt = t[None, :]
     To = op.end[:, None]
     tc = jnp.clip(tt, 0.0, To)  # (Mo, K)
@@ -774,9 +774,9 @@ def _jet(op: OthersPrep, t, R: int):
         out = 0.0
         for i in range(So):
             s = jnp.where(op.pos[i][:, None], (tc - op.lo[i][:, None]) / op.he[i][:, None], 0.0)
-            cr = op.c[r, :, i]  # (N, Mo, Kd)
-            v = cr[..., Kd - 1, None]
-            for j in range(Kd - 2, -1, -1):
+            cr = op.c[r][:, i]  # (N, Mo, Kd - r)
+            v = cr[..., -1, None]
+            for j in range(cr.shape[-1] - 2, -1, -1):
                 v = v * s[None] + cr[..., j, None]
             out = v if So == 1 else out + jnp.where((k == i)[None], v, 0.0)
         vals.append(out)

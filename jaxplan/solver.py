@@ -140,6 +140,8 @@ class _State(NamedTuple):
     grad: jax.Array  # the projected gradient of L_A at x (Armijo)
     a: jax.Array  # the step length of y along d
     k: jax.Array  # int32: trials before y in this line search
+    obj0: jax.Array  # the objective at x0 (from the first evaluation; reported where the
+    viol0: jax.Array  # lane ends NON_FINITE) and the constraint violation there
 
 
 def _tree_where(c, a, b):
@@ -378,13 +380,10 @@ def _next_trial(a, g_x: Multipliers, g_a: Multipliers, thr: Multipliers, oversho
 
 class _Lane(NamedTuple):
     """What a lane's iterations read besides its state: the sanitized params and the
-    bound on tau (the end-kind constants are recomputed from params.rest: cheap); the
-    objective and the violation at x0 (reported where a lane ends NON_FINITE)."""
+    bound on tau (the end-kind constants are recomputed from params.rest: cheap)."""
 
     params: NLPParams
     tau_min: jax.Array
-    objective0: jax.Array
-    viol0: jax.Array
     others: costs.OthersPrep  # the others' predictions as the derivatives read them
 
 
@@ -403,14 +402,19 @@ def _prepare(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
     mult0 = jax.tree.map(lambda a: jnp.where(jnp.isfinite(a), jnp.maximum(a, 0.0), 0.0), mult0)
     mu0 = jnp.asarray(s.mu0 if penalty is None else penalty, jnp.float64)
     mu0 = jnp.where(jnp.isfinite(mu0) & (mu0 > 0), mu0, s.mu0)
-    f0, g0 = costs.merit_and_constraints(x0, params, structure, kc, mult0, mu0)
+    # L_A and the constraints at x0 come with the first evaluation; only a solve allowed
+    # no iteration at all evaluates them here (for its report)
+    unset = (jnp.asarray(jnp.inf, jnp.float64),
+             jax.tree.map(jnp.ones_like, zero_multipliers(params, structure)))
+    f0, g0 = jax.lax.cond(s.max_iters > 0, lambda: unset, lambda: costs.merit_and_constraints(
+        x0, params, structure, kc, mult0, mu0))
     F = lambda v: jnp.asarray(v, jnp.float64)
     st0 = _State(x0, mult0, mu0, g0, f0, F(jnp.inf), jnp.asarray(False), jnp.asarray(0, jnp.int32),
                  jnp.asarray(False), jnp.asarray(False), F(jnp.inf), F(jnp.inf),
                  base=jnp.asarray(True), y=x0, d=jnp.zeros_like(x0), grad=jnp.zeros_like(x0),
-                 a=F(0.0), k=jnp.asarray(-1, jnp.int32))
-    lane = _Lane(params, tau_min, _objective(f0, g0, mult0, mu0, params, structure),
-                 _max_violation(g0), costs.prepare_others(params.others, params.other_mask))
+                 a=F(0.0), k=jnp.asarray(-1, jnp.int32),
+                 obj0=_objective(f0, g0, mult0, mu0, params, structure), viol0=_max_violation(g0))
+    lane = _Lane(params, tau_min, costs.prepare_others(params.others, params.other_mask))
     return lane, st0, finite_in, x0
 
 
@@ -446,6 +450,8 @@ class _Eval(NamedTuple):
     grp: jax.Array
     Hp: jax.Array
     a_next: jax.Array
+    obj0: jax.Array
+    viol0: jax.Array
 
 
 def _active(st: _State, s: SolverSettings):
@@ -506,8 +512,12 @@ def _evaluate(st: _State, lane: _Lane, structure: NLPStructure, s: SolverSetting
     finite = jnp.isfinite(fy) & jnp.all(jnp.isfinite(grp)) & jnp.all(jnp.isfinite(Hp))
     grp = jnp.where(finite, grp, 0.0)
     Hp = jnp.where(finite, Hp, jnp.eye(n))
+    first = st.base & (st.it == 0)  # the evaluation at x0
+    obj0 = jnp.where(first, _objective(fy, gy, st.mult, st.mu, params, structure), st.obj0)
+    viol0 = jnp.where(first, _max_violation(gy), st.viol0)
     return _Eval(more=more, x=x, g=g, f_x=f_x, fy=fy, pending=pending, mult=mult, mu=mu,
-                 viol_ref=viol_ref, start=start, finite=finite, grp=grp, Hp=Hp, a_next=a_next)
+                 viol_ref=viol_ref, start=start, finite=finite, grp=grp, Hp=Hp, a_next=a_next,
+                 obj0=obj0, viol0=viol0)
 
 
 def _advance(st: _State, lane: _Lane, ev: _Eval, d, s: SolverSettings) -> _State:
@@ -542,7 +552,8 @@ def _advance(st: _State, lane: _Lane, ev: _Eval, d, s: SolverSettings) -> _State
         kkt=jnp.where(start, jnp.max(jnp.abs(grp)), st.kkt),
         theta=jnp.where(start, theta, st.theta), base=~(search | more), y=y_new, d=d_new,
         grad=jnp.where(search, grp, st.grad), a=a_new,
-        k=jnp.where(search, 0, jnp.where(more, st.k + 1, -1)).astype(jnp.int32))
+        k=jnp.where(search, 0, jnp.where(more, st.k + 1, -1)).astype(jnp.int32),
+        obj0=ev.obj0, viol0=ev.viol0)
     return _tree_where(_active(st, s), new, st)  # an inactive lane is returned as is
 
 
@@ -571,7 +582,7 @@ def _finish(st: _State, lane: _Lane, finite_in, x0, structure: NLPStructure,
     bad = st.bad | ~finite_in | ~jnp.all(jnp.isfinite(st.x))
     x = jnp.where(bad, x0, st.x)
     # st.g and st.f are the constraints and L_A at st.x: no second pass over the others
-    viol = jnp.where(bad, lane.viol0, _max_violation(st.g))
+    viol = jnp.where(bad, st.viol0, _max_violation(st.g))
     conv = st.done & ~bad
     status = jnp.where(bad, NON_FINITE, jnp.where(conv, CONVERGED,
                        jnp.where(viol > s.tol_feasibility, INFEASIBLE, MAX_ITERS))
@@ -580,7 +591,7 @@ def _finish(st: _State, lane: _Lane, finite_in, x0, structure: NLPStructure,
     traj_ok = jnp.all(jnp.isfinite(traj.coeffs)) & jnp.all(jnp.isfinite(traj.breaks))
     hold = Trajectory.hold(params.p0, structure.degree, structure.segments)
     traj = _tree_where(traj_ok, traj, hold._replace(coast=traj.coast))
-    obj = jnp.where(bad, lane.objective0, _objective(st.f, st.g, st.mult, st.mu, params, structure))
+    obj = jnp.where(bad, st.obj0, _objective(st.f, st.g, st.mult, st.mu, params, structure))
     eq = costs.equality_residual(x, params, structure)
     no_nan = lambda a: jnp.where(jnp.isnan(a), jnp.inf, a)
     return Solution(
@@ -713,26 +724,27 @@ def _pooled(st_all: _State, lane_all: _Lane, step, C: int, s: SolverSettings) ->
 
 LOCKSTEP_MAX = 32  # batches up to this size start in lockstep (_pooled)
 POOL_CPU = 2  # lanes per step on a CPU (measured on 2 cores: see default_pool)
-POOL_CPU_FEW = 8  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
+POOL_CPU_FEW = 12  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
 FEW_OTHERS = 16  # "few": at most this many other robots per NLP
 
 
 def default_pool(batch: int, backend: str | None = None, n_others: int | None = None) -> int:
-    """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (8)
+    """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (12)
     lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
     robots each (``n_others``: the other-robot slots of an NLP, masked ones included),
     else POOL_CPU (2); B elsewhere.
 
     Measured on a 2-core CPU (2026-12-01, one evaluation per step; `jaxplan bench
-    solver` NLPs, each batch split over the two CPU devices, medians of 5 in one
-    process): the 64 x 10 cold batch (9 others) took 139 / 136 / 140 / 141 / 147 / 155 ms
-    with pools 8 / 12 / 16 / 24 / 32 / 48 per device, 100 robots with 16 neighbours
-    163 / 106 / 97 / 121 / 133 ms cold with 2 / 4 / 8 / 16 / 32 (warm 27 / 20 / 20 / 27 /
-    31), with all 99 others 310 / 332 / 457 / 619 ms cold with 2 / 8 / 16 / 32 (warm 58 /
-    72 / 81 / 166).  A step costs a fixed part (XLA's per-kernel overheads) plus a part
-    per lane: wide pools share the fixed part, but once the per-lane arrays grow (many
-    others) caches lose.  Warm 10-robot replans: 2.2-2.5 ms for pools 2-10 (they start
-    in lockstep, :func:`_pooled`)."""
+    solver` NLPs, each batch split over the two CPU devices, medians of 10 interleaved in
+    one process): the 64 x 10 cold batch (9 others) took 218 / 215 / 200 / 190 / 205 ms
+    with pools 6 / 8 / 10 / 12 / 16 per device (an earlier, faster hour: 139 / 136 / 140
+    / 141 / 147 / 155 ms with 8 / 12 / 16 / 24 / 32 / 48); 100 robots with 16 neighbours
+    118 / 107 / 112 ms cold with 4 / 8 / 12 (warm 24 / 24 / 24) and 163 / 106 / 97 / 121 /
+    133 ms cold with 2 / 4 / 8 / 16 / 32 earlier; with all 99 others 310 / 332 / 457 /
+    619 ms cold with 2 / 8 / 16 / 32 (warm 58 / 72 / 81 / 166).  A step costs a fixed
+    part (XLA's per-kernel overheads) plus a part per lane: wide pools share the fixed
+    part, but once the per-lane arrays grow (many others) caches lose.  Warm 10-robot
+    replans: 2.2-2.5 ms for pools 2-10 (they start in lockstep, :func:`_pooled`)."""
     backend = backend or jax.default_backend()
     if backend != "cpu":
         return batch

@@ -272,12 +272,12 @@ def test_one_evaluation_steps_take_the_textbook_iterates(mode):
 
 
 def test_default_pool_follows_the_batch_and_its_others():
-    """The automatic pool (measured rule, solver.default_pool): 8 lanes on a CPU for a
+    """The automatic pool (measured rule, solver.default_pool): 12 lanes on a CPU for a
     large batch of NLPs with few others each, 2 otherwise, the whole batch elsewhere;
     never more lanes than the batch has."""
     L, F = solver.LOCKSTEP_MAX, solver.FEW_OTHERS
-    assert solver.default_pool(640, "cpu", n_others=10) == solver.POOL_CPU_FEW == 8
-    assert solver.default_pool(L + 1, "cpu", n_others=F) == 8
+    assert solver.default_pool(640, "cpu", n_others=10) == solver.POOL_CPU_FEW == 12
+    assert solver.default_pool(L + 1, "cpu", n_others=F) == 12
     assert solver.default_pool(L, "cpu", n_others=10) == solver.POOL_CPU == 2
     assert solver.default_pool(640, "cpu", n_others=F + 1) == 2
     assert solver.default_pool(640, "cpu") == 2
