@@ -677,9 +677,10 @@ def _pooled(st_all: _State, lane_all: _Lane, step, C: int, s: SolverSettings) ->
     lanes, and wastes the idle lanes' part; slots waste nothing but pay the fixed part
     per C lanes.  So the common first iterations run in lockstep and the stragglers in
     slots (a lane that needs 60 iterations does not hold B - 1 idle lanes for them).
-    Larger batches go to the slots at once: there the lockstep line search (every lane
-    waits for the slowest backtracking) cost more than it saved (measured: 100 cold
-    robots with 16 neighbours, 603 ms vs 281 ms).
+    Larger batches go to the slots at once: there lockstep cost more than it saved
+    (measured when a step still held a whole line search, so that every lane waited for
+    the slowest backtracking: 100 cold robots with 16 neighbours, 603 ms vs 281 ms; not
+    re-measured since a step is one evaluation per lane).
     """
     B = st_all.it.shape[0]
     take = lambda tree, idx: jax.tree.map(lambda a: jnp.take(a, idx, axis=0, mode="clip"), tree)
