@@ -585,6 +585,38 @@ def _smooth_time(x, params, structure, kc):
     return params.weights.q_dynm * jerk + params.weights.k_t * T
 
 
+_E_POW = np.array([0, 1, 2, 0, 1, 2])  # the power of h in each row of boundary_vector
+
+
+def _smooth_time_derivs(x, params, structure, kc):
+    """(value, gradient, Hessian) of :func:`_smooth_time` in closed form: with h = T / S
+    and e(h) = E diag(h^k) (boundary_vector), the jerk integral is
+    sum_ij W_ij h^(k_i + k_j - 5) + h^-5 sum q z^2, W = M * (E E^T); each power of h has
+    tau derivatives m h^m and m^2 h^m."""
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    h = T / structure.segments
+    E = jnp.stack([params.p0, params.v0, params.a0, params.goal_p, params.goal_v,
+                   params.goal_a])  # (6, N)
+    m = jnp.asarray(_E_POW[:, None] + _E_POW[None, :] - 5, jnp.float64)
+    hm = jnp.exp(m * jnp.log(h))
+    W = kc.M * (E @ E.T) * hm
+    h5 = jnp.exp(-5.0 * jnp.log(h))
+    qz = kc.q[None, :] * z  # (N, nz)
+    Qz = jnp.sum(qz * z) * h5
+    wd, kt = params.weights.q_dynm, params.weights.k_t
+    v = wd * (jnp.sum(W) + Qz) + kt * T
+    g = jnp.concatenate([jnp.ravel(2.0 * wd * h5 * qz),
+                         (wd * (jnp.sum(W * m) - 5.0 * Qz) + kt * T)[None]])
+    n = x.shape[0]
+    dz = jnp.ravel(jnp.broadcast_to(2.0 * wd * h5 * kc.q[None, :], z.shape))
+    H = jnp.zeros((n, n), x.dtype).at[jnp.arange(n - 1), jnp.arange(n - 1)].set(dz)
+    hzt = jnp.ravel(-10.0 * wd * h5 * qz)
+    H = H.at[:-1, -1].set(hzt).at[-1, :-1].set(hzt)
+    H = H.at[-1, -1].set(wd * (jnp.sum(W * m * m) + 25.0 * Qz) + kt * T)
+    return v, g, H
+
+
 def _has_collision(structure):
     """Whether the NLP has SAMPLED collision terms (barrier or constraints)."""
     return structure.barrier or structure.collision_constraints
@@ -933,7 +965,7 @@ def merit_derivs(x, params, structure, kc, mult: Multipliers, mu, with_g: bool =
     T = jnp.exp(tau)
     gc = jnp.ones((structure.n_col, Mo), x.dtype)
     gh = jnp.ones((len(b.lim_s), 3), x.dtype)
-    tv, tg, tH = _vgh(lambda xx: _smooth_time(xx, params, structure, kc), x)
+    tv, tg, tH = _smooth_time_derivs(x, params, structure, kc)
     jq = _lim_jets(params, structure, "quad", tau)
     v, g, H, _ = _lim_terms(z, T, jq, jnp.asarray(b.quad_w), None, params, mu, True)
     tv, tg, tH = tv + v, tg + g, tH + H
