@@ -608,12 +608,11 @@ def _smooth_time_derivs(x, params, structure, kc):
     v = wd * (jnp.sum(W) + Qz) + kt * T
     g = jnp.concatenate([jnp.ravel(2.0 * wd * h5 * qz),
                          (wd * (jnp.sum(W * m) - 5.0 * Qz) + kt * T)[None]])
-    n = x.shape[0]
     dz = jnp.ravel(jnp.broadcast_to(2.0 * wd * h5 * kc.q[None, :], z.shape))
-    H = jnp.zeros((n, n), x.dtype).at[jnp.arange(n - 1), jnp.arange(n - 1)].set(dz)
+    htt = wd * (jnp.sum(W * m * m) + 25.0 * Qz) + kt * T
+    H = jnp.diag(jnp.concatenate([dz, htt[None]]))
     hzt = jnp.ravel(-10.0 * wd * h5 * qz)
     H = H.at[:-1, -1].set(hzt).at[-1, :-1].set(hzt)
-    H = H.at[-1, -1].set(wd * (jnp.sum(W * m * m) + 25.0 * Qz) + kt * T)
     return v, g, H
 
 

@@ -462,16 +462,8 @@ def _active(st: _State, s: SolverSettings):
 
 def _evaluate(st: _State, lane: _Lane, structure: NLPStructure, s: SolverSettings) -> _Eval:
     """The first half of :func:`_step` for one lane: the evaluation at st.y and what it
-    decides before the Newton direction (which :func:`_directions` forms for a batch).
-
-    In a line search, y is a trial: it is accepted (Armijo on L_A) or the next trial
-    is set (cut back past the first AL branch crossing, else halved: _next_trial).  An
-    accepted trial is the next iterate, and its derivatives, already at hand, start the
-    next iteration unless the multipliers change there (then the next evaluation is at
-    the iterate again, with the new ones).  So a trial costs the derivatives (a merit
-    value alone would do for a rejected one), and no lane waits for another's
-    backtracking: a pool step is one evaluation per lane.  The iterates are those of an
-    SQP iteration "multiplier update, derivatives at x, step, backtracking line search"."""
+    decides before the Newton direction (which :func:`_directions` forms for a batch);
+    see :func:`_step` for how trials and iterations share evaluations."""
     params, tau_min = lane.params, lane.tau_min
     kc = costs.kind_constants(params.rest, structure)
     n = st.x.shape[0]
@@ -622,8 +614,9 @@ def solve(params: NLPParams, x0, structure: NLPStructure,
     lane, st0, finite_in, x0 = _prepare(params, x0, structure, s, multipliers, penalty,
                                         x_fallback)
     one = lambda t: jax.tree.map(lambda a: a[None], t)
+    lane1 = one(lane)  # a batch of one lane, as _step takes it
     st = jax.lax.while_loop(lambda st: _active(st, s)[0],
-                            lambda st: _step(st, one(lane), structure, s), one(st0))
+                            lambda st: _step(st, lane1, structure, s), one(st0))
     return _finish(jax.tree.map(lambda a: a[0], st), lane, finite_in, x0, structure, s)
 
 
