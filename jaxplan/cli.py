@@ -7,15 +7,22 @@
     jaxplan scenarios                           list built-in scenarios
 
 Bad input exits with status 2 and one line on stderr that names the problem.
+
+`run` and `sweep` keep compiled XLA programs in JAX's persistent compilation cache
+(:func:`compile_cache_dir`), so that a repeated run of the same config skips most of its
+compile time; `--no-cache` (or ``JAXPLAN_CACHE_DIR=""``) turns that off.  `bench` does not
+turn it on (its compile times are meant to be compiles).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 BENCHES = ("predict", "solver", "sim", "all")
+CACHE_ENV = "JAXPLAN_CACHE_DIR"
 
 
 class _Fail(Exception):
@@ -37,6 +44,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override sim.backend of the config")
     r.add_argument("--no-figures", action="store_true", help="skip the figures")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--no-cache", action="store_true",
+                   help="do not use the compilation cache (see JAXPLAN_CACHE_DIR)")
     s = sub.add_parser("sweep", help="run a weight x scenario x seed grid (resumable)")
     s.add_argument("config", type=Path, help="sweep TOML file (with a [sweep] table)")
     s.add_argument("--out", type=Path, default=None,
@@ -45,6 +54,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="runs per batched computation (default: one per CPU device on a CPU, "
                         "split over the devices; 27 on a GPU)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--no-cache", action="store_true",
+                   help="do not use the compilation cache (see JAXPLAN_CACHE_DIR)")
     pl = sub.add_parser("plot", help="(re)draw a run directory's figures")
     pl.add_argument("run_dir", type=Path)
     pl.add_argument("--no-animation", action="store_true")
@@ -53,6 +64,41 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--json", type=Path, default=None, help="write the figures as JSON")
     sub.add_parser("scenarios", help="list built-in scenarios")
     return p
+
+
+def compile_cache_dir() -> Path | None:
+    """The directory `jaxplan run` and `jaxplan sweep` keep compiled programs in:
+    ``$JAXPLAN_CACHE_DIR`` when set (empty: no cache), else
+    ``$XDG_CACHE_HOME/jaxplan/xla`` (default ``~/.cache/jaxplan/xla``)."""
+    env = os.environ.get(CACHE_ENV)
+    if env is not None:
+        return Path(env).expanduser() if env.strip() else None
+    base = os.environ.get("XDG_CACHE_HOME", "").strip()
+    return (Path(base) if base else Path.home() / ".cache") / "jaxplan" / "xla"
+
+
+def _use_compile_cache(off: bool) -> str | None:
+    """Point JAX's persistent compilation cache at :func:`compile_cache_dir` (before the
+    first compile); return the directory in use, or None.  A directory already chosen
+    through JAX (``JAX_COMPILATION_CACHE_DIR``, jax.config) is kept.  JAX keys each
+    entry by the program, the JAX/XLA versions, the flags and the device, and caches
+    only programs that took >= 1 s to compile."""
+    import jax
+
+    if off:
+        return None
+    if jax.config.jax_compilation_cache_dir:
+        return jax.config.jax_compilation_cache_dir
+    d = compile_cache_dir()
+    if d is None:
+        return None
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # e.g. a read-only home: run without it
+        print(f"jaxplan: note: no compilation cache ({d}: {e.strerror})", file=sys.stderr)
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(d))
+    return str(d)
 
 
 def _load(path: Path):
@@ -76,14 +122,16 @@ def _cmd_run(args) -> int:
     from jaxplan.results import write_run
 
     out = args.out or Path("runs") / cfg.name
+    cache = _use_compile_cache(args.no_cache)
     res = run(cfg, progress=not args.quiet)
     write_run(res, out, figures=not args.no_figures)
-    print(summary(res.metrics, out))
+    print(summary(res.metrics, out, cache))
     return 0
 
 
-def summary(m: dict, out: Path) -> str:
-    """The one-screen summary printed at the end of `jaxplan run`."""
+def summary(m: dict, out: Path, cache: str | None = None) -> str:
+    """The one-screen summary printed at the end of `jaxplan run` (``cache``: the
+    compilation cache directory in use, if any)."""
     f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)
     s = m["solver"]
     lines = [
@@ -101,7 +149,8 @@ def summary(m: dict, out: Path) -> str:
         f"  fallbacks: kept previous plan {m['fallbacks']['kept_previous']}, "
         f"braking {m['fallbacks']['braking']}, best effort {m['fallbacks']['best_effort']}, "
         f"goal occupied {m['fallbacks'].get('goal_occupied', 0)}",
-        f"  compile {m['compile_s']:.1f} s, run {m['run_s']:.2f} s",
+        f"  compile {m['compile_s']:.1f} s, run {m['run_s']:.2f} s"
+        + (f" (compilation cache: {cache})" if cache else ""),
         f"  results in {out}/ (metrics.json, trajectories.npz, config.toml, figures/)",
     ]
     tr = m.get("tracking")
@@ -160,6 +209,7 @@ def _cmd_sweep(args) -> int:
     if args.batch is not None and args.batch < 1:
         raise _Fail(f"--batch must be >= 1, got {args.batch}")
     out = args.out or Path("sweeps") / cfg.name
+    _use_compile_cache(args.no_cache)
     try:
         run_sweep(cfg, out, progress=not args.quiet, batch_size=args.batch)
     except SweepError as e:

@@ -9,6 +9,9 @@ import pytest
 # and two devices in each oversubscribed them (the suite took ~1.5 min longer).  The
 # tests of the split over devices run child processes with JAXPLAN_CPU_DEVICES=2.
 os.environ.setdefault("JAXPLAN_CPU_DEVICES", "1")
+# `jaxplan run` / `sweep` called in-process must not write a compilation cache into the
+# home directory (the test of the cache gives its children their own directory)
+os.environ.setdefault("JAXPLAN_CACHE_DIR", "")
 
 import jaxplan  # noqa: E402, F401  (float64)
 

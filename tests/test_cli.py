@@ -1,23 +1,28 @@
 """The `jaxplan` command: every contract file of a run directory, clear errors."""
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from jaxplan.cli import main
+from jaxplan.cli import compile_cache_dir, main
 from tests.conftest import TINY_TOML
 
 
-def test_run_writes_every_contract_file(tmp_path, capsys, tiny_run):
+def test_run_writes_every_contract_file(tmp_path, capsys, tiny_run, monkeypatch):
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY_TOML)
     out = tmp_path / "run"
-    assert main(["run", str(cfg), "--out", str(out), "--quiet"]) == 0
+    monkeypatch.setenv("JAXPLAN_CACHE_DIR", str(tmp_path / "cache"))
+    assert main(["run", str(cfg), "--out", str(out), "--quiet", "--no-cache"]) == 0
+    assert not (tmp_path / "cache").exists()  # --no-cache: no cache directory made
     printed = capsys.readouterr().out
     assert "SUCCESS" in printed and str(out) in printed
+    assert "compilation cache" not in printed
     # config.toml: the fully resolved config, loadable again
     from jaxplan.config import load_config
 
@@ -94,3 +99,51 @@ def test_bad_cpu_device_count_exits_with_one_line_that_names_it():
 def test_plot_bad_dir(cmd, capsys):
     assert main(cmd) == 2
     assert "not a directory" in capsys.readouterr().err
+
+
+def test_compile_cache_dir_follows_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv("JAXPLAN_CACHE_DIR", str(tmp_path / "c"))
+    assert compile_cache_dir() == tmp_path / "c"
+    monkeypatch.setenv("JAXPLAN_CACHE_DIR", " ")
+    assert compile_cache_dir() is None  # empty: no cache
+    monkeypatch.delenv("JAXPLAN_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "x"))
+    assert compile_cache_dir() == tmp_path / "x" / "jaxplan" / "xla"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "h"))
+    assert compile_cache_dir() == tmp_path / "h" / ".cache" / "jaxplan" / "xla"
+
+
+def test_a_rerun_from_the_compilation_cache_gives_the_same_results(tmp_path):
+    """Two `jaxplan run` processes of one config sharing a cache directory: the first
+    fills it, the second runs from it, and both write the same results."""
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY_TOML)
+    cache = tmp_path / "cache"
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, JAXPLAN_CACHE_DIR=str(cache),
+               PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    outs, entries = [], []
+    for i in range(2):
+        out = tmp_path / f"run{i}"
+        r = subprocess.run([sys.executable, "-m", "jaxplan", "run", str(cfg), "--out", str(out),
+                            "--quiet", "--no-figures"], env=env, capture_output=True, text=True,
+                           timeout=600)
+        assert r.returncode == 0, r.stderr[-3000:]
+        assert f"compilation cache: {cache}" in r.stdout
+        entries.append(sorted(p.name for p in cache.iterdir()))
+        outs.append(out)
+    assert entries[0], "the first run cached nothing"
+    assert entries[1] == entries[0]  # the second found every program it needed there
+    m0, m1 = (json.loads((o / "metrics.json").read_text()) for o in outs)
+    for m in (m0, m1):  # wall-clock figures differ run to run
+        for key in ("compile_s", "run_s"):
+            m.pop(key)
+        for key in ("median_ms", "p95_ms", "max_ms"):
+            m["solver"].pop(key)
+    assert m0 == m1
+    t0, t1 = (np.load(o / "trajectories.npz", allow_pickle=False) for o in outs)
+    assert sorted(t0.files) == sorted(t1.files)
+    for k in t0.files:
+        np.testing.assert_array_equal(t0[k], t1[k], err_msg=k)
