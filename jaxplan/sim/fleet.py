@@ -77,12 +77,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
+from jaxplan.sim import import_mjx, se3
 from jaxplan.sim import model as sim_model_lib
-from jaxplan.sim import se3
 from jaxplan.trajectory import Trajectory
 from jaxplan.vehicles import get_vehicle
+
+mjx = import_mjx()
 
 LAYOUTS = ("vmap", "fleet")
 DEFAULT_LAYOUT = "vmap"

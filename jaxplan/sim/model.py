@@ -212,8 +212,10 @@ def to_mjx(model: mujoco.MjModel):
         RuntimeError if JAX x64 is off (MJX would silently compute in float32).
     """
     import jax
-    from mujoco import mjx
 
+    from jaxplan.sim import import_mjx
+
+    mjx = import_mjx()
     if not jax.config.jax_enable_x64:
         raise RuntimeError("to_mjx needs jax x64 (import jaxplan first)")
     mx = mjx.put_model(model)
