@@ -82,10 +82,12 @@ def _use_compile_cache(off: bool) -> str | None:
     first compile); return the directory in use, or None.  A directory already chosen
     through JAX (``JAX_COMPILATION_CACHE_DIR``, jax.config) is kept.  JAX keys each
     entry by the program, the JAX/XLA versions, the flags and the device, and caches
-    only programs that took >= 1 s to compile."""
+    only programs that took >= 1 s to compile.  ``off`` (--no-cache): no persistent
+    cache at all, not even one chosen through JAX."""
     import jax
 
     if off:
+        jax.config.update("jax_enable_compilation_cache", False)
         return None
     if jax.config.jax_compilation_cache_dir:
         return jax.config.jax_compilation_cache_dir

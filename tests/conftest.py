@@ -1,6 +1,8 @@
 """Shared fixtures: one small fleet problem compiled once per test process."""
 
 import os
+import shutil
+import tempfile
 
 import numpy as np
 import pytest
@@ -12,8 +14,23 @@ os.environ.setdefault("JAXPLAN_CPU_DEVICES", "1")
 # `jaxplan run` / `sweep` called in-process must not write a compilation cache into the
 # home directory (the test of the cache gives its children their own directory)
 os.environ.setdefault("JAXPLAN_CACHE_DIR", "")
+# One persistent compilation cache for the whole test session: made by the first process
+# that imports this file (the controller under pytest-xdist, which starts its workers
+# after, with this environment), so the workers share it; a program one test or worker
+# compiled, the next loads.  That process removes it at the end of the session.
+_SESSION_CACHE = None
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _SESSION_CACHE = tempfile.mkdtemp(prefix="jaxplan-tests-xla-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _SESSION_CACHE
 
 import jaxplan  # noqa: E402, F401  (float64)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """The process that made the session's compilation cache removes it."""
+    if _SESSION_CACHE:
+        shutil.rmtree(_SESSION_CACHE, ignore_errors=True)
+
 
 TINY_TOML = """
 name = "tiny"

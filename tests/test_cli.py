@@ -18,8 +18,15 @@ def test_run_writes_every_contract_file(tmp_path, capsys, tiny_run, monkeypatch)
     cfg.write_text(TINY_TOML)
     out = tmp_path / "run"
     monkeypatch.setenv("JAXPLAN_CACHE_DIR", str(tmp_path / "cache"))
-    assert main(["run", str(cfg), "--out", str(out), "--quiet", "--no-cache"]) == 0
-    assert not (tmp_path / "cache").exists()  # --no-cache: no cache directory made
+    import jax
+
+    try:
+        assert main(["run", str(cfg), "--out", str(out), "--quiet", "--no-cache"]) == 0
+        # --no-cache: no cache directory made, JAX's own cache (the suite's) off too
+        assert not (tmp_path / "cache").exists()
+        assert not jax.config.jax_enable_compilation_cache
+    finally:
+        jax.config.update("jax_enable_compilation_cache", True)
     printed = capsys.readouterr().out
     assert "SUCCESS" in printed and str(out) in printed
     assert "compilation cache" not in printed
