@@ -4,12 +4,12 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from jaxplan.cli import compile_cache_dir, main
+from tests._proc import ROOT
 from tests.conftest import TINY_TOML
 
 
@@ -127,9 +127,9 @@ def test_a_rerun_from_the_compilation_cache_gives_the_same_results(tmp_path):
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY_TOML)
     cache = tmp_path / "cache"
-    root = Path(__file__).resolve().parents[1]
+    # not tests._proc.child_env: that one sets JAX_COMPILATION_CACHE_DIR, which jaxplan keeps
     env = dict(os.environ, JAXPLAN_CACHE_DIR=str(cache),
-               PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     outs, entries = [], []
     for i in range(2):
