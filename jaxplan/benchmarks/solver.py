@@ -253,10 +253,11 @@ def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool =
     # the same run's serial SLSQP rate (10 cold NLPs, (b)) as a reference: this machine's
     # speed drifts by up to ~1.7x within minutes, and both figures drift with it
     slsqp_rate = 10 / (res["slsqp10_cold"]["ms"] / 1e3)
-    res["batch64x10"] = dict(ms=ms, ms_min=lo, ms_max=hi, solves_per_s=640 / (ms / 1e3),
+    rate = 640 / (ms / 1e3)
+    res["batch64x10"] = dict(ms=ms, ms_min=lo, ms_max=hi, solves_per_s=rate,
                              solves_per_s_range=[640 / (hi / 1e3), 640 / (lo / 1e3)],
                              slsqp_serial_solves_per_s=slsqp_rate,
-                             ratio_vs_slsqp_serial=640 / (ms / 1e3) / slsqp_rate,
+                             ratio_vs_slsqp_serial=rate / slsqp_rate,
                              compile_s=comp,
                              converged=float(np.mean(np.asarray(sol.status) == 0)))
     if echo:
