@@ -10,8 +10,10 @@ Bad input exits with status 2 and one line on stderr that names the problem.
 
 `run` and `sweep` keep compiled XLA programs in JAX's persistent compilation cache
 (:func:`compile_cache_dir`), so that a repeated run of the same config skips most of its
-compile time; `--no-cache` (or ``JAXPLAN_CACHE_DIR=""``) turns that off.  `bench` does not
-turn it on (its compile times are meant to be compiles).
+compile time; `--no-cache` (or ``JAXPLAN_CACHE_DIR=""``) turns that off.  That directory is
+kept under :data:`CACHE_MAX_BYTES` (least recently used entries removed first; JAX's
+``JAX_COMPILATION_CACHE_MAX_SIZE``, in bytes, overrides it).  `bench` does not turn it on
+(its compile times are meant to be compiles).
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from pathlib import Path
 
 BENCHES = ("predict", "solver", "sim", "all")
 CACHE_ENV = "JAXPLAN_CACHE_DIR"
+CACHE_MAX_BYTES = 1 << 30  # jaxplan's own cache directory: 1 GiB (a run's entry is ~1-2 MB)
+CACHE_MAX_ENV = "JAX_COMPILATION_CACHE_MAX_SIZE"  # JAX's own setting, in bytes (-1: no limit)
 
 
 class _Fail(Exception):
@@ -82,7 +86,9 @@ def _use_compile_cache(off: bool) -> str | None:
     first compile); return the directory in use, or None.  A directory already chosen
     through JAX (``JAX_COMPILATION_CACHE_DIR``, jax.config) is kept.  JAX keys each
     entry by the program, the JAX/XLA versions, the flags and the device, and caches
-    only programs that took >= 1 s to compile.  ``off`` (--no-cache): no persistent
+    only programs that took >= 1 s to compile.  jaxplan's directory is bounded to
+    :data:`CACHE_MAX_BYTES` (JAX evicts the least recently used entries) unless
+    ``JAX_COMPILATION_CACHE_MAX_SIZE`` is set.  ``off`` (--no-cache): no persistent
     cache at all, not even one chosen through JAX."""
     import jax
 
@@ -99,8 +105,28 @@ def _use_compile_cache(off: bool) -> str | None:
     except OSError as e:  # e.g. a read-only home: run without it
         print(f"jaxplan: note: no compilation cache ({d}: {e.strerror})", file=sys.stderr)
         return None
+    if CACHE_MAX_ENV not in os.environ:
+        jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
+    if jax.config.jax_compilation_cache_max_size != -1:
+        _stamp_unstamped(d)
     jax.config.update("jax_compilation_cache_dir", str(d))
     return str(d)
+
+
+def _stamp_unstamped(d: Path) -> None:
+    """Give every entry of cache directory ``d`` that has no access-time file one (its
+    modification time), so that JAX's size-bounded cache (jax._src.lru_cache, which
+    reads one per entry when it evicts) can manage entries written without a bound
+    (jaxplan before it set one)."""
+    from jax._src import lru_cache
+
+    for entry in d.glob(f"*{lru_cache._CACHE_SUFFIX}"):
+        stamp = d / (entry.name.removesuffix(lru_cache._CACHE_SUFFIX) + lru_cache._ATIME_SUFFIX)
+        if not stamp.exists():
+            try:
+                stamp.write_bytes(entry.stat().st_mtime_ns.to_bytes(8, "little"))
+            except OSError:  # unreadable or vanished: JAX reports it if it matters
+                pass
 
 
 def _load(path: Path):

@@ -154,3 +154,82 @@ def test_a_rerun_from_the_compilation_cache_gives_the_same_results(tmp_path):
     assert sorted(t0.files) == sorted(t1.files)
     for k in t0.files:
         np.testing.assert_array_equal(t0[k], t1[k], err_msg=k)
+
+
+_EVICT_CHILD = r"""
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import cli
+
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+d = Path(cli._use_compile_cache(False))
+assert jax.config.jax_compilation_cache_max_size == int(sys.argv[1])
+sizes = []
+for k in range(6):  # six distinct programs, each cached on its first call
+    jax.jit(lambda x, k=k: jnp.sin(x) * (k + 1.0) + jnp.cumsum(x) ** (k + 2))(jnp.ones(64))
+    sizes.append(sum(p.stat().st_size for p in d.glob("*-cache")))
+print(" ".join(map(str, sizes)))
+"""
+
+
+def test_the_cache_directory_is_bounded_and_evicts_old_entries(tmp_path):
+    """`jaxplan run`'s own cache directory has a size bound (cli.CACHE_MAX_BYTES, here
+    JAX_COMPILATION_CACHE_MAX_SIZE): JAX evicts the least recently used entries, also
+    entries written before the bound was set (no access-time file)."""
+    from jaxplan import cli
+
+    assert cli.CACHE_MAX_BYTES > 0
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    old = cache / "jit_old_program-0123456789abcdef-cache"  # as jaxplan wrote it unbounded
+    old.write_bytes(b"\0" * 1000)
+    env = dict(os.environ, JAXPLAN_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu",
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    # the bound from the environment: a little above the first new entry
+    unbounded = dict(env, JAX_COMPILATION_CACHE_MAX_SIZE="-1",
+                     JAXPLAN_CACHE_DIR=str(tmp_path / "p"))
+    probe = subprocess.run([sys.executable, "-c", _EVICT_CHILD, "-1"], capture_output=True,
+                           text=True, timeout=300, env=unbounded)
+    assert probe.returncode == 0, probe.stderr[-3000:]
+    first = int(probe.stdout.split()[0])
+    cap = 2 * first + 500
+    bounded = dict(env, JAX_COMPILATION_CACHE_MAX_SIZE=str(cap))
+    r = subprocess.run([sys.executable, "-c", _EVICT_CHILD, str(cap)], capture_output=True,
+                       text=True, timeout=300, env=bounded)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "Error writing persistent compilation cache" not in r.stderr, r.stderr[-3000:]
+    sizes = [int(v) for v in r.stdout.split()]
+    assert max(sizes) <= cap
+    assert not old.exists()  # the oldest entry went first
+    assert len(list(cache.glob("*-cache"))) < 6  # and some of the new ones after it
+
+
+def test_the_cache_bound_defaults_to_jaxplans_and_yields_to_jaxs(monkeypatch, tmp_path):
+    import jax
+
+    from jaxplan import cli
+
+    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_compilation_cache_max_size)
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_MAX_SIZE", raising=False)
+    monkeypatch.setenv("JAXPLAN_CACHE_DIR", str(tmp_path / "c"))
+    try:
+        jax.config.update("jax_compilation_cache_dir", None)
+        (tmp_path / "c").mkdir()
+        (tmp_path / "c" / "k-cache").write_bytes(b"x")
+        assert cli._use_compile_cache(False) == str(tmp_path / "c")
+        assert jax.config.jax_compilation_cache_max_size == cli.CACHE_MAX_BYTES
+        assert (tmp_path / "c" / "k-atime").exists()  # stamped for the bounded cache
+        jax.config.update("jax_compilation_cache_dir", None)
+        jax.config.update("jax_compilation_cache_max_size", -1)
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_MAX_SIZE", "-1")
+        cli._use_compile_cache(False)
+        assert jax.config.jax_compilation_cache_max_size == -1  # the user's choice kept
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_compilation_cache_max_size", before[1])
