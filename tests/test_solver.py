@@ -580,3 +580,63 @@ def test_warm_replan_with_a_large_penalty_converges():
         P, x0, m, mu))
     assert sol.status == solver.CONVERGED and sol.iterations <= 15, (sol.status, sol.iterations)
     assert sol.ineq_violation <= 1e-8 and np.isfinite(sol.objective)
+
+
+@pytest.mark.parametrize("segments", [1, 3])
+def test_rest_shape_is_the_rest_ends_path_in_the_free_parametrization(segments):
+    """solver._rest_shape: z = G e(h) in the free-end parametrization gives exactly the
+    rest end's minimum-jerk path (the rest kind at z = 0): the same coefficients, and
+    the goal's end velocity and acceleration at T."""
+    st = NLPStructure(segments=segments)
+    p = random_problem(np.random.default_rng(3), n_others=2, rest=False)
+    p = p._replace(goal_v=jnp.asarray([0.3, -0.2, 0.1]), goal_a=jnp.asarray([0.0, 0.4, -0.1]))
+    tau = jnp.log(4.0)
+    e = costs.boundary_vector(p, jnp.exp(tau) / segments)
+    z = (jnp.asarray(solver._rest_shape(st)) @ e).T
+    c_free, _ = costs.coefficients(costs.pack(z, tau), p, st)
+    c_rest, _ = costs.coefficients(costs.pack(jnp.zeros_like(z), tau), p._replace(rest=True), st)
+    np.testing.assert_allclose(c_free, c_rest, rtol=0, atol=1e-10)
+    tr = costs.to_trajectory(costs.pack(z, tau), p, st)
+    np.testing.assert_allclose(tr.state_at(jnp.asarray(4.0 - 1e-12))[1], p.goal_v, atol=1e-8)
+    np.testing.assert_allclose(tr.state_at(jnp.asarray(4.0 - 1e-12))[2], p.goal_a, atol=1e-8)
+
+
+def test_initial_guess_is_the_best_candidate_of_the_grid():
+    """initial_guess minimizes the collision-free objective over the T grid and, for a
+    free end, the shapes alpha z_rest(T) (a brute-force search over the same candidates
+    agrees); a rest end keeps z = 0; an antipodal free-end fleet starts from the
+    halfway shape with a shorter T than the free path's (the reason for the shapes)."""
+    from jaxplan.benchmarks.solver import antipodal, fleet_params
+    from jaxplan.predict import predict_arrays
+
+    st = NLPStructure()
+    free = NLPStructure(collision="none")
+    G = solver._rest_shape(st)
+    pos, goals = antipodal(10, 5.0, np.random.default_rng(0))
+    for rest in (False, True):
+        P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), goals, rest=rest)
+        x0 = np.asarray(solver.initial_guess_batch(P, st))
+        for i in range(3):
+            p = index_params(P, i)
+            pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
+            best, arg = np.inf, None
+            for a in solver.GUESS_SHAPES:
+                for f in solver.GUESS_T_FACTORS:
+                    T = float(pred.duration) * f
+                    z = 0.0 if rest else a * (G @ np.asarray(costs.boundary_vector(p, T))).T
+                    x = costs.pack(jnp.broadcast_to(z, (3, st.nz)), jnp.log(T))
+                    v = float(costs.objective(x, p, free))
+                    if v < best:
+                        best, arg = v, (a, T)
+            kc = costs.kind_constants(p.rest, free)
+            got = float(costs._terms(jnp.asarray(x0[i]), p, free, kc, None, 1.0))
+            np.testing.assert_allclose(got, best, rtol=1e-12)
+            np.testing.assert_allclose(np.exp(x0[i, -1]), arg[1], rtol=1e-12)
+            if rest:
+                assert np.all(x0[i, :-1] == 0.0)
+            else:
+                assert arg[0] == 0.5  # the halfway shape wins here
+                Ts = float(pred.duration) * solver.GUESS_T_FACTORS
+                v0 = [float(costs.objective(costs.pack(jnp.zeros((3, st.nz)), jnp.log(T)), p,
+                                            free)) for T in Ts]
+                assert arg[1] < Ts[int(np.argmin(v0))]  # shorter than the free path's T
