@@ -199,9 +199,9 @@ def initial_guess(params: NLPParams, structure: NLPStructure) -> jax.Array:
     :func:`_rest_shape`): alpha = 0 is the free end's minimum-jerk path, which ends at
     its highest speed, so that the soft velocity limit alone makes the grid pick a long
     T; alpha = 0.5 is the path halfway to the rest one.  (On the benchmark's 640
-    antipodal NLPs the collision-free optimum's shape projects onto alpha ~0.48 and
-    its T is ~0.7 of the alpha = 0 choice; the rest path itself, alpha = 1, was never
-    the better start there.)  A rest end keeps z = 0 (the same guess as with alpha = 0
+    antipodal NLPs the solutions' shapes project onto alpha ~0.48, the collision-free
+    optimum's T is ~0.7 of the alpha = 0 choice, and the rest path itself, alpha = 1,
+    was never the better start.)  A rest end keeps z = 0 (the same guess as with alpha = 0
     alone).  Finite for any input.
     """
     p, _ = _sanitize(params)
