@@ -271,13 +271,19 @@ def eigh_chunk(n: int) -> int:
     return max(1, (_LAPACK_SPLIT_COST - 1) // (_EIGH_COST * n ** 3))
 
 
-def _lapack_safe(fn):
+def _lapack_safe(fn, per: int = 1):
     """``fn`` of one matrix (n, n) (first argument; LAPACK inside) made safe to vmap on a
     CPU: under vmap the batch goes to LAPACK in calls of at most eigh_chunk(n) matrices
     (cheaper kernels than eigh's split later, so its bound covers them), which jaxlib
     runs on the calling thread (see _LAPACK_SPLIT_COST); elsewhere (a GPU) one batched
     call.  The results are those of the batched call: LAPACK treats each matrix alone.
-    Every argument must be batched along with the matrix."""
+    Every argument must be batched along with the matrix.
+
+    Nested vmaps (``jax.vmap`` of :func:`solve`, whose steps vmap over a batch of one
+    lane) stay safe too: the batched function each level forms is itself made safe, with
+    ``per`` the matrices one of its calls already holds, so an outer level chunks its
+    batch by eigh_chunk(n) // per (before, the outer vmap batched the inner level's
+    LAPACK call whole: a vmapped solve of 640 lanes hung at 0% CPU)."""
     safe = jax.custom_batching.custom_vmap(fn)
 
     @safe.def_vmap
@@ -287,11 +293,11 @@ def _lapack_safe(fn):
             return out, jax.tree.map(lambda _: False, out)
         args = [a if b else jnp.broadcast_to(a, (axis_size,) + jnp.shape(a))
                 for a, b in zip(args, in_batched, strict=True)]
-        many = jax.vmap(fn)
         n = args[0].shape[-1]
+        k = max(1, eigh_chunk(n) // per)  # lanes per LAPACK call
+        many = _lapack_safe(jax.vmap(fn), per * min(k, axis_size))
 
         def in_chunks(*args):
-            k = eigh_chunk(n)
             if k >= axis_size:
                 return many(*args)
             parts = -(-axis_size // k)

@@ -5,6 +5,7 @@ few structures, so each structure compiles once for the whole module.
 """
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -408,6 +409,48 @@ def test_cpu_eigh_calls_never_split_their_batch():
         # the same bound keeps them whole (their kernels are cheaper than syevd's)
         chol = _eigh_batches(lowered, ("lapack_dpotrf", "lapack_dtrsm"))
         assert chol and all(m == st.n_x and ok(b, m) for b, m in chol), (st, chol)
+
+
+def _lapack_batches(lowered, kernels):
+    """(matrices, n) of every call of the LAPACK ``kernels`` in a lowered program, all
+    leading batch axes counted."""
+    import re
+    out = []
+    for ln in lowered.as_text().splitlines():
+        if any(k in ln for k in kernels):
+            dims = [int(v) for v in re.search(r": \(tensor<([\dx]+)xf64>", ln).group(1).split("x")]
+            out.append((math.prod(dims[:-2]), dims[-1]))
+    return out
+
+
+def test_nested_vmaps_of_the_solver_never_split_a_lapack_batch():
+    """jax.vmap of solve (whose steps vmap over a batch of one lane) is a vmap of a
+    vmap: the outer level must chunk its LAPACK calls as well (solver._lapack_safe's
+    ``per``).  Before, it batched the inner call whole, and a vmapped solve of the
+    bench's 640 NLPs hung at 0% CPU.  The chunked nested eigh equals one batched call."""
+    ok = lambda b, n: b == 1 or b * solver._EIGH_COST * n ** 3 < solver._LAPACK_SPLIT_COST
+    rng = np.random.default_rng(4)
+    n = 19
+    k = solver.eigh_chunk(n)
+    for shape in ((3 * k + 2, 1), (k + 1, 2), ((solver.UNROLL_EIGH + 2) * k, 3)):
+        A = rng.normal(size=shape + (n, n))
+        H = A + np.swapaxes(A, -1, -2)
+        f = jax.jit(jax.vmap(jax.vmap(solver._eigh)))
+        sizes = _lapack_batches(f.lower(H), ("lapack_dsyevd",))
+        assert sizes and all(m == n and ok(b, n) for b, m in sizes), (shape, sizes)
+        w, V = f(H)
+        w0, V0 = jnp.linalg.eigh(H)
+        np.testing.assert_array_equal(w, w0)
+        np.testing.assert_array_equal(V, V0)
+    # the public route: jax.vmap(solve) over more lanes than one call may hold
+    st = S2["barrier+constraint"]
+    _, P = _s1_batch()
+    assert not ok(B, st.n_x)
+    lowered = jax.jit(jax.vmap(lambda p, x: solver.solve(p, x, st))).lower(
+        solver._strong(P), jnp.zeros((B, st.n_x)))
+    for kernels in (("lapack_dsyevd",), ("lapack_dpotrf", "lapack_dtrsm")):
+        sizes = _lapack_batches(lowered, kernels)
+        assert sizes and all(m == st.n_x and ok(b, m) for b, m in sizes), (kernels, sizes)
 
 
 _THREADS = """
