@@ -175,6 +175,7 @@ def _sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
 
 GUESS_SHAPES = (0.0, 0.5)  # free ends: z = alpha z_rest(T) (initial_guess)
 GUESS_T_FACTORS = np.geomspace(0.5, 8.0, 25)  # the grid of horizons (x the prediction's)
+GUESS_STEPS = (8, 4, 2, 1)  # initial_guess's bisection of that grid (its 25 = 3 x 8 + 1 points)
 
 
 def _rest_shape(structure: NLPStructure) -> np.ndarray:
@@ -202,7 +203,13 @@ def initial_guess(params: NLPParams, structure: NLPStructure) -> jax.Array:
     antipodal NLPs the solutions' shapes project onto alpha ~0.48, the collision-free
     optimum's T is ~0.7 of the alpha = 0 choice, and the rest path itself, alpha = 1,
     was never the better start.)  A rest end keeps z = 0 (the same guess as with alpha = 0
-    alone).  Finite for any input.
+    alone).  The grid is searched by bisection (GUESS_STEPS: its points 0, 8, 16, 24,
+    then +-4, +-2, +-1 around the best so far; 10 objective evaluations per shape
+    instead of 25), which finds the grid's minimum wherever the objective is unimodal
+    along the grid (smoothness falls and time rises with T, the soft limits fall with
+    it): on the benchmark's 640 NLPs, 160 rest-end fleet NLPs and 400 random ones, with
+    1, 2 and 3 segments, the same guess as the full search to rounding (< 1e-12), at
+    about half its cost.  Finite for any input.
     """
     p, _ = _sanitize(params)
     w = p.weights.k_t / jnp.maximum(p.weights.q_dynm, 1e-12)
@@ -213,17 +220,37 @@ def initial_guess(params: NLPParams, structure: NLPStructure) -> jax.Array:
     T = jnp.where(jnp.isfinite(T), jnp.maximum(T, tmin), tmin)
     free = dataclasses.replace(structure, collision="none", hard_limits=False)
     kc = costs.kind_constants(p.rest, free)
+    K = len(GUESS_T_FACTORS)
     taus = jnp.log(jnp.maximum(T * jnp.asarray(GUESS_T_FACTORS), tmin))  # (K,)
     G = jnp.asarray(_rest_shape(structure))
-    zr = jax.vmap(lambda t: (G @ costs.boundary_vector(p, jnp.exp(t) / structure.segments)).T
-                  )(taus)  # (K, N, nz)
     al = jnp.where(jnp.asarray(p.rest, bool), 0.0, jnp.asarray(GUESS_SHAPES))  # (A,)
-    z = (al[:, None, None, None] * zr[None]).reshape(len(GUESS_SHAPES), len(taus), -1)
-    tt = jnp.broadcast_to(taus[None, :, None], z.shape[:2] + (1,))
-    xs = jnp.concatenate([z, tt], axis=-1).reshape(-1, structure.n_x)
-    fs = jax.vmap(lambda x: costs._terms(x, p, free, kc, None, 1.0))(xs)
-    fs = jnp.where(jnp.isfinite(fs), fs, jnp.inf)
-    x = xs[jnp.argmin(fs)]
+
+    def candidates(idx):  # (A, m) grid indices -> x (A, m, n_x), objective (A, m)
+        t = taus[idx]
+        zr = jax.vmap(lambda tt: (G @ costs.boundary_vector(p, jnp.exp(tt) / structure.segments)
+                                  ).T.reshape(-1))(t.reshape(-1)).reshape(t.shape + (-1,))
+        xs = jnp.concatenate([al[:, None, None] * zr, t[..., None]], axis=-1)
+        fs = jax.vmap(lambda x: costs._terms(x, p, free, kc, None, 1.0))(
+            xs.reshape(-1, structure.n_x)).reshape(t.shape)
+        return xs, jnp.where(jnp.isfinite(fs), fs, jnp.inf)
+
+    # per shape, the grid's minimum by bisection (GUESS_STEPS): exact where the objective
+    # is unimodal along the grid, at 10 of its 25 points
+    h0 = GUESS_STEPS[0]
+    xs, fs = candidates(jnp.broadcast_to(jnp.arange(0, K, h0), (len(GUESS_SHAPES), -(-K // h0))))
+    j = jnp.argmin(fs, axis=1)
+    take = lambda a, j: jnp.take_along_axis(a, j[:, None, None] if a.ndim == 3 else j[:, None],
+                                            axis=1)[:, 0]
+    best, xb, fb = j * h0, take(xs, j), take(fs, j)
+    for h in GUESS_STEPS[1:]:
+        idx = jnp.clip(jnp.stack([best - h, best + h], axis=1), 0, K - 1)
+        xc, fc = candidates(idx)
+        idx3 = jnp.stack([idx[:, 0], best, idx[:, 1]], axis=1)  # in grid order (ties: first)
+        x3 = jnp.stack([xc[:, 0], xb, xc[:, 1]], axis=1)
+        f3 = jnp.stack([fc[:, 0], fb, fc[:, 1]], axis=1)
+        j = jnp.argmin(f3, axis=1)
+        best, xb, fb = take(idx3, j), take(x3, j), take(f3, j)
+    x = xb[jnp.argmin(fb)]
     return jnp.where(jnp.all(jnp.isfinite(x)), x, jnp.zeros_like(x).at[-1].set(jnp.log(tmin)))
 
 
