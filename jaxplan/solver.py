@@ -703,7 +703,7 @@ def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
     s = settings
     B = x0.shape[0]
     pool = B if pool is None else max(1, min(int(pool), B))
-    if x_fallback is None:  # cold guesses (25 objective evaluations each) only if needed
+    if x_fallback is None:  # cold guesses (20 objective evaluations each) only if needed
         x_fallback = jax.lax.cond(
             jnp.all(jnp.isfinite(x0)), lambda: jnp.zeros_like(x0),
             lambda: jax.vmap(lambda p: initial_guess(p, structure))(params))
