@@ -176,6 +176,10 @@ def _sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
 GUESS_SHAPES = (0.0, 0.5)  # free ends: z = alpha z_rest(T) (initial_guess)
 GUESS_T_FACTORS = np.geomspace(0.5, 8.0, 25)  # the grid of horizons (x the prediction's)
 GUESS_STEPS = (8, 4, 2, 1)  # initial_guess's bisection of that grid (its 25 = 3 x 8 + 1 points)
+# the bisection is exact for a unimodal objective only if the grid is 1 + a multiple of
+# the first step and each step halves the last down to 1
+assert (len(GUESS_T_FACTORS) - 1) % GUESS_STEPS[0] == 0 and GUESS_STEPS == tuple(
+    GUESS_STEPS[0] >> i for i in range(GUESS_STEPS[0].bit_length())), GUESS_STEPS
 
 
 def _rest_shape(structure: NLPStructure) -> np.ndarray:
