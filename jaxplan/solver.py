@@ -243,8 +243,7 @@ def initial_guess(params: NLPParams, structure: NLPStructure) -> jax.Array:
     h0 = GUESS_STEPS[0]
     xs, fs = candidates(jnp.broadcast_to(jnp.arange(0, K, h0), (len(GUESS_SHAPES), -(-K // h0))))
     j = jnp.argmin(fs, axis=1)
-    take = lambda a, j: jnp.take_along_axis(a, j[:, None, None] if a.ndim == 3 else j[:, None],
-                                            axis=1)[:, 0]
+    take = lambda a, j: a[jnp.arange(a.shape[0]), j]  # per shape, its j-th entry
     best, xb, fb = j * h0, take(xs, j), take(fs, j)
     for h in GUESS_STEPS[1:]:
         idx = jnp.clip(jnp.stack([best - h, best + h], axis=1), 0, K - 1)

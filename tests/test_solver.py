@@ -363,12 +363,16 @@ def test_cpu_device_count_from_the_environment(monkeypatch):
             jaxplan._cpu_device_count()
 
 
-def _eigh_batches(lowered, kernels=("lapack_dsyevd",)):
-    """(batch, n) of every call of the LAPACK ``kernels`` in a lowered program."""
+def _lapack_batches(lowered, kernels=("lapack_dsyevd",)):
+    """(matrices, n) of every call of the LAPACK ``kernels`` in a lowered program, all
+    leading batch axes counted."""
     import re
-    calls = [ln for ln in lowered.as_text().splitlines() if any(k in ln for k in kernels)]
-    return [tuple(int(v) for v in re.search(r": \(tensor<(\d+)x(\d+)x\d+xf64>", ln).groups())
-            for ln in calls]
+    out = []
+    for ln in lowered.as_text().splitlines():
+        if any(k in ln for k in kernels):
+            dims = [int(v) for v in re.search(r": \(tensor<([\dx]+)xf64>", ln).group(1).split("x")]
+            out.append((math.prod(dims[:-2]), dims[-1]))
+    return out
 
 
 def test_cpu_eigh_calls_never_split_their_batch():
@@ -387,7 +391,7 @@ def test_cpu_eigh_calls_never_split_their_batch():
             A = rng.normal(size=(batch, n, n))
             H = A + A.transpose(0, 2, 1)
             f = jax.jit(jax.vmap(solver._eigh))
-            sizes = _eigh_batches(f.lower(H))
+            sizes = _lapack_batches(f.lower(H))
             assert sizes and all(m == n and ok(b, n) for b, m in sizes), (n, batch, sizes)
             w, V = f(H)
             w0, V0 = jnp.linalg.eigh(H)
@@ -401,26 +405,14 @@ def test_cpu_eigh_calls_never_split_their_batch():
         lowered = solver._solve_batch_jit.lower(
             solver._strong(sub), x0, st, solver._strong(solver.SolverSettings()), None, None,
             pool=solver.default_pool(n_lanes, n_others=P.other_mask.shape[-1]))
-        sizes = _eigh_batches(lowered)
+        sizes = _lapack_batches(lowered)
         assert sizes and all(m == st.n_x and ok(b, m) for b, m in sizes), (st, sizes)
         if n_lanes == 10 and st.segments == 2:  # as one call this batch would split
             assert not ok(n_lanes, st.n_x)
         # the Cholesky steps' LAPACK calls (potrf, trsm) split their batches alike, and
         # the same bound keeps them whole (their kernels are cheaper than syevd's)
-        chol = _eigh_batches(lowered, ("lapack_dpotrf", "lapack_dtrsm"))
+        chol = _lapack_batches(lowered, ("lapack_dpotrf", "lapack_dtrsm"))
         assert chol and all(m == st.n_x and ok(b, m) for b, m in chol), (st, chol)
-
-
-def _lapack_batches(lowered, kernels):
-    """(matrices, n) of every call of the LAPACK ``kernels`` in a lowered program, all
-    leading batch axes counted."""
-    import re
-    out = []
-    for ln in lowered.as_text().splitlines():
-        if any(k in ln for k in kernels):
-            dims = [int(v) for v in re.search(r": \(tensor<([\dx]+)xf64>", ln).group(1).split("x")]
-            out.append((math.prod(dims[:-2]), dims[-1]))
-    return out
 
 
 def test_nested_vmaps_of_the_solver_never_split_a_lapack_batch():
