@@ -106,6 +106,22 @@ def test_vmapped_batch_equals_single_solves_and_nan_lane():
     assert np.mean(sol.status == solver.CONVERGED) >= 0.9
 
 
+def test_cold_batch_forms_the_initial_guesses_itself():
+    """solve_batch(P, None): every problem from its initial_guess, formed in the solve's
+    own program: the results of solving from initial_guess_batch; an x0 whose leading
+    axes are not the problems' is refused before anything compiles."""
+    ps, P = _s1_batch()
+    x0 = solver.initial_guess_batch(P, S1)
+    ref = jax.device_get(solver.solve_batch(P, x0, S1))
+    cold = jax.device_get(solver.solve_batch(P, None, S1))
+    np.testing.assert_array_equal(cold.status, ref.status)
+    np.testing.assert_array_equal(cold.iterations, ref.iterations)
+    ok = ref.status != solver.NON_FINITE  # the NaN lane reports x0 (None here: its guess)
+    np.testing.assert_allclose(cold.x[ok], ref.x[ok], rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="leading axes"):
+        solver.solve_batch(P, x0[:3], S1)
+
+
 def test_pool_size_does_not_change_results():
     """solve_batch steps ``pool`` lanes at a time, refilling finished slots (the work is
     the sum of the lanes' iterations, not B x the largest): every lane must come out as
@@ -330,6 +346,17 @@ try:
     raise SystemExit("shards = 3 accepted")
 except ValueError as e:
     assert "shards = 3" in str(e)
+# a cold start (x0 = None): each device forms its own lanes' guesses in the solve's program
+cold = jax.device_get(solver.solve_batch(P, None, st))
+np.testing.assert_array_equal(cold.iterations, split.iterations)
+np.testing.assert_allclose(cold.x[conv], split.x[conv], rtol=1e-9, atol=1e-9)
+# the lanes are dealt round-robin (device d: lanes d, d + 2, ...) and come back in order
+import jax.numpy as jnp
+deal = jax.jit(lambda a: solver.shard_lanes(
+    lambda b: (b, jnp.full(b.shape, jax.lax.axis_index("lanes"))), (a,), 2))
+back, dev = jax.device_get(deal(jnp.arange(7.0)))
+np.testing.assert_array_equal(back, np.arange(7.0))
+np.testing.assert_array_equal(dev, np.arange(7) % 2)
 print("ok")
 """
 
@@ -339,8 +366,9 @@ def test_batch_split_over_cpu_devices_gives_the_one_device_results(tmp_path):
     (jaxplan makes one per core; solver.default_shards), here in a child process with
     JAXPLAN_CPU_DEVICES=2 (the suite's own processes keep one: conftest): every lane
     takes the same iterations and ends with the same status as on one device, and the
-    same floats to rounding where it converged.  The batch is odd: padded, and the
-    copies dropped."""
+    same floats to rounding where it converged; so does a cold start (x0 = None: the
+    guesses formed per device in the solve's program).  The batch is odd: padded, and
+    the copies dropped.  The lanes are dealt to the devices round-robin."""
     import subprocess
     import sys
 
