@@ -916,8 +916,9 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
     axes), jitted; ``settings`` is shared.  x0 = None: a cold start, every problem from
     its :func:`initial_guess`, formed in the same compiled program as the solve (each
     CPU device forms its own problems' guesses: the same guesses as
-    :func:`initial_guess_batch`, without a second call and its wait for every device).  Weights, limits and settings are traced: new
-    values (Python scalars or arrays) reuse the compiled function (``_solve_batch_jit``).
+    :func:`initial_guess_batch`, without a second call and its wait for every device).
+    Weights, limits and settings are traced: new values (Python scalars or arrays)
+    reuse the compiled function (``_solve_batch_jit``).
     ``shards``: CPU devices the problems are split over (default :func:`default_shards`
     of the number of problems; at most ``len(jax.devices("cpu"))``).  ``pool``: lanes
     stepped at a time on each (:func:`solve_lanes`; default :func:`default_pool` of the
