@@ -879,9 +879,10 @@ def _kind_rows(params, structure, name: str, orders):
     return apply, jnp.where(rest, jnp.asarray(both[1, ..., 6:]), jnp.asarray(both[0, ..., 6:]))
 
 
-def _lim_jets(params, structure, name, tau):
-    """Jets of the velocity, acceleration and jerk features at the basis sample set
-    ``name`` ("quad" or "lim"): three stacked groups, Y_r = (B_r e(h) + C_r z) / h^r."""
+def _lim_affine(params, structure, name):
+    """tau -> (b (3, N, K), C (3, K, nz)): the velocity, acceleration and jerk features at
+    the basis sample set ``name`` ("quad" or "lim"), Y_r = (B_r e(h) + C_r z) / h^r =
+    b_r + z C_r^T, three stacked groups."""
     S = structure.segments
     apply, C = _kind_rows(params, structure, name, (1, 2, 3))
     r = jnp.arange(1, 4, dtype=jnp.float64)[:, None, None]
@@ -891,7 +892,12 @@ def _lim_jets(params, structure, name, tau):
         sc = h ** -r
         return apply(boundary_vector(params, h)) * sc, C * sc
 
-    return _affine_jets(f, tau)
+    return f
+
+
+def _lim_jets(params, structure, name, tau):
+    """Jets of :func:`_lim_affine`'s features (value, first and second tau derivative)."""
+    return _affine_jets(_lim_affine(params, structure, name), tau)
 
 
 def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
@@ -923,9 +929,9 @@ def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
     return val, g, H, Y
 
 
-def _col_jets(params, structure, kc, tau):
-    """Jets of the own positions at the collision rows (samples, then the coast): one
-    group (1, N, K)."""
+def _col_affine(params, structure, kc):
+    """tau -> (b (1, N, K), C (1, K, nz)): the own positions at the collision rows
+    (samples, then the coast), p = b + z C^T, one group."""
     S = structure.segments
     n = structure.n_coast
     apply, C0 = _kind_rows(params, structure, "col", (0,))
@@ -944,7 +950,60 @@ def _col_jets(params, structure, kc, tau):
             C = jnp.concatenate([C, Ce[None]], axis=1)
         return b, C
 
-    return _affine_jets(f, tau)
+    return f
+
+
+def _col_jets(params, structure, kc, tau):
+    """Jets of :func:`_col_affine`'s positions (value, first and second tau derivative)."""
+    return _affine_jets(_col_affine(params, structure, kc), tau)
+
+
+def merit_shapes(zs, tau, params, structure, kc, mult: Multipliers, mu,
+                 others: OthersPrep | None = None):
+    """:func:`merit` at the C points x = (z, tau) for the shapes zs (C, N, nz) at ONE
+    horizon tau: the values (C,), equal to a vmap of :func:`merit` over the points to
+    rounding.  What depends on tau alone (boundary terms, the other robots' positions at
+    the samples) is formed once, and the terms are laid out as in :func:`merit_derivs`
+    (components first), so that comparing a few shapes costs about one merit evaluation
+    per shape less the shared part (used by :func:`jaxplan.solver.initial_guess`)."""
+    b = basis(structure)
+    T = jnp.exp(tau)
+    h = T / structure.segments
+    wt = params.weights
+    e = boundary_vector(params, h)
+    val = (wt.q_dynm * (jnp.sum(e * (kc.M @ e)) + jnp.sum(kc.q * zs * zs, axis=(1, 2))) / h**5
+           + wt.k_t * T)
+    lim = params.limits
+    tm2 = (jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2)[:, None]
+
+    def radial(name):  # (C, 3, K): |Y_r|^2 of the limit features
+        bl, Cl = _lim_affine(params, structure, name)(tau)
+        Y = bl[None] + jnp.einsum("cnz,gkz->cgnk", zs, Cl)
+        return jnp.sum(Y * Y, axis=2)
+
+    val = val + wt.q_lim * T * jnp.sum(jnp.asarray(b.quad_w) * sexp(radial("quad") - tm2),
+                                       axis=(1, 2))
+    if structure.paper:
+        val = val + jax.vmap(lambda z: _paper_exact(pack(z, tau), params, structure, kc))(zs)
+    if _has_collision(structure):
+        op = prepare_others(params.others, params.other_mask) if others is None else others
+        s, off, w, on = _col_samples(params, structure)
+        bp, C = _col_affine(params, structure, kc)(tau)
+        p = bp[0][None] + jnp.einsum("cnz,kz->cnk", zs, C[0])  # (C, N, K)
+        X = p[:, :, None, :] - _jet(op, T * s + off, 0)[0][None]  # (C, N, Mo, K)
+        r = jnp.sum(X * X, axis=1)  # (C, Mo, K)
+        mask = params.other_mask[:, None]
+        rho = (params.radius + params.other_radius)[:, None]
+        if structure.barrier:
+            ex = wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(r + DIST_EPS2) - rho))
+            val = val + T * jnp.sum(jnp.where(mask, ex, 0.0), axis=(1, 2))
+        if structure.collision_constraints:
+            use = mask & on[None, :]
+            val = val + jnp.sum(jnp.where(use, al_term(r - rho * rho, mult.collision.T, mu),
+                                          0.0), axis=(1, 2))
+    if structure.hard_limits:
+        val = val + jnp.sum(al_term(1.0 - radial("lim") / tm2, mult.limits.T, mu), axis=(1, 2))
+    return val
 
 
 def merit_derivs(x, params, structure, kc, mult: Multipliers, mu, with_g: bool = False,

@@ -299,7 +299,7 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
         limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
     )
 
-    # warm starts; cold guesses (20 objective evaluations each) only when some robot
+    # warm starts; cold guesses (20 objective and 5 merit values each) only when some robot
     # has no usable previous plan
     nan_x = jnp.full((nlp.n_x,), jnp.nan)
     x_warm = jax.vmap(lambda prev, pr: slv.warm_start(prev, fp.dt, pr, nlp, nan_x))(

@@ -73,6 +73,27 @@ def test_limit_derivatives_match_autodiff_where_the_limits_bind(rest, q_lim):
 
 
 @pytest.mark.parametrize("st,rest", CASES)
+@pytest.mark.parametrize("T", [5.0, 0.8])
+def test_merit_shapes_equals_merit_at_each_shape(st, rest, T):
+    """merit_shapes (several shapes at one horizon, shared tau parts) against merit at
+    each point: a slow plan (T = 5 s) and a fast one (0.8 s: the soft limits far up
+    their exponential, the hard-limit AL terms on their quadratic branch)."""
+    rng = np.random.default_rng(4)
+    p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
+    kc = costs.kind_constants(p.rest, st)
+    b = costs.basis(st)
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))),
+                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
+    xs = jnp.stack([_x(rng, st, T, sc) for sc in (0.0, 0.05, 0.5, 2.0, 2.0)])
+    xs = xs.at[:, -1].set(np.log(T))
+    zs = jax.vmap(lambda x: costs.unpack(x, st)[0])(xs)
+    got = jax.jit(lambda z: costs.merit_shapes(z, jnp.log(T), p, st, kc, mult, 30.0))(zs)
+    ref = jax.jit(jax.vmap(lambda x: costs.merit(x, p, st, kc, mult, 30.0)))(xs)
+    assert np.all(np.isfinite(ref)) and len(set(np.round(np.asarray(ref), 6))) >= 4
+    np.testing.assert_allclose(got, ref, rtol=1e-12)
+
+
+@pytest.mark.parametrize("st,rest", CASES)
 def test_equalities_hold_by_construction(st, rest):
     rng = np.random.default_rng(1)
     p = random_problem(rng, n_others=3, rest=rest)
