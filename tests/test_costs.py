@@ -30,14 +30,20 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("st,rest", CASES)
-def test_structured_derivatives_match_autodiff(st, rest):
-    rng = np.random.default_rng(0)
+def _problem_and_multipliers(rng, st, rest):
+    """A random NLP with 6 others (soft limits on), its end-kind constants and random
+    multipliers (collision 0-50, limits 0-5)."""
     p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
-    kc = costs.kind_constants(p.rest, st)
     b = costs.basis(st)
     mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))),
                        jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
+    return p, costs.kind_constants(p.rest, st), mult
+
+
+@pytest.mark.parametrize("st,rest", CASES)
+def test_structured_derivatives_match_autodiff(st, rest):
+    rng = np.random.default_rng(0)
+    p, kc, mult = _problem_and_multipliers(rng, st, rest)
     x = _x(rng, st, 5.0, 0.05)
     f = lambda xx: costs.merit(xx, p, st, kc, mult, 30.0)
     v, g, H = jax.jit(lambda xx: costs.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
@@ -79,11 +85,7 @@ def test_merit_shapes_equals_merit_at_each_shape(st, rest, T):
     each point: a slow plan (T = 5 s) and a fast one (0.8 s: the soft limits far up
     their exponential, the hard-limit AL terms on their quadratic branch)."""
     rng = np.random.default_rng(4)
-    p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
-    kc = costs.kind_constants(p.rest, st)
-    b = costs.basis(st)
-    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))),
-                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
+    p, kc, mult = _problem_and_multipliers(rng, st, rest)
     xs = jnp.stack([_x(rng, st, T, sc) for sc in (0.0, 0.05, 0.5, 2.0, 2.0)])
     xs = xs.at[:, -1].set(np.log(T))
     zs = jax.vmap(lambda x: costs.unpack(x, st)[0])(xs)
