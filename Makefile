@@ -34,8 +34,10 @@ paper: $(STAMP)
 sweep: $(STAMP)
 	$(VENV)/bin/jaxplan sweep experiments/sweeps/qobs_qlim.toml
 
-# the README's collision-mode and fault tables (resumable; long: see experiments/studies.py)
+# docs/RESULTS.md: the paper scenarios (both backends), collision-mode and fault tables
+# (resumable; about an hour on 2 cores: see experiments/studies.py)
 studies: $(STAMP)
+	$(PY) experiments/studies.py paper --out sweeps/studies
 	$(PY) experiments/studies.py collision --out sweeps/studies
 	$(PY) experiments/studies.py faults --out sweeps/studies
 

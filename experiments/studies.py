@@ -1,44 +1,63 @@
-"""Benchmark studies behind the README's tables: each is a set of resumable sweeps.
+"""The studies behind docs/RESULTS.md: sets of resumable runs and sweeps, and the page.
 
-    python experiments/studies.py collision [--seeds N] [--out DIR] [--batch B]
-    python experiments/studies.py faults    [--seeds N] [--out DIR] [--batch B]
-    make studies                                    (both, 20 seeds, into sweeps/studies/)
+    python experiments/studies.py paper     [--out DIR] [--backends B ...] [--only NAME ...]
+    python experiments/studies.py collision [--seeds N] [--out DIR] [--batch B] [--fleets F ...]
+    python experiments/studies.py faults    [--seeds N] [--out DIR] [--batch B] [--fleets F ...]
+    python experiments/studies.py results   [--out DIR]        (rebuild the page, run nothing)
+    make studies                            (paper, collision, faults into sweeps/studies/)
+
+``paper``: the paper's four scenarios (experiments/paper/*.toml), each under the ideal
+and the mjx backend, default settings, seed 0, one `jaxplan run ... --quiet
+--no-figures` each (a run directory per cell under ``--out/paper/``; a cell whose
+metrics.json exists is not run again).
 
 ``collision``: the four collision modes ("paper", "barrier", "constraint",
 "barrier+constraint") x the two benchmark fleets (experiments/benchmarks/antipodal_10.toml
 and random_box_20.toml), everything else at its default.
 
-``faults``: the same two fleets under each fault of jaxplan.faults alone, at the default
+``faults``: the same two fleets under each fault of ``[faults]`` alone, at the default
 planner settings: 20% message loss; 300 ms latency; sigma = 2 cm noise on the states the
 robots receive; robot 0 freezing (silent) at t = 2 s.  "Success" excepts the frozen robot
 (it cannot reach its goal); a collision with it still counts.
 
-Each (study, setting, fleet) cell is one `jaxplan sweep` directory under ``--out``, so an
-interrupted study resumes where it stopped.  The table (markdown) is printed and written
-to ``--out/<study>.md``; the cells' aggregates to ``--out/<study>.json``.  Batches of one
-run are the default because on a CPU a vmapped batch runs every lane for as many solver
-iterations as its slowest lane needs (measured: 20 antipodal runs took 127 s batched
-vs about 90 s one after another).
+Each (study, setting, fleet) cell of ``collision`` and ``faults`` is one `jaxplan sweep`
+directory under ``--out``, so an interrupted study resumes where it stopped.  Batches of
+one run are the default because on a CPU a vmapped batch runs every lane for as many
+solver iterations as its slowest lane needs (20 antipodal runs: 127 s batched, about
+90 s one after another, 2-core CPU).
+
+Every study prints its table (markdown) and writes it to ``--out/<study>.md``, with
+``--out/<study>.meta.json`` (the command, the machine, the date) and the cells'
+aggregates in ``--out/<study>.json``; then it rewrites ``--results`` (default
+docs/RESULTS.md) from every ``<study>.md`` under ``--out``.  ``results`` does only that
+last step.  In the page, a study whose table is not under ``--out`` keeps the table it
+had, and the hand-written notes between ``<!-- notes:STUDY -->`` and
+``<!-- /notes:STUDY -->`` are kept as they are.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
+import datetime
 import json
 import math
+import os
+import platform
+import re
+import shlex
 import statistics
+import subprocess
 import sys
 import time
-import tomllib
 from pathlib import Path
 
-from jaxplan.config import parse_config
-from jaxplan.sweep import run_sweep
-
 ROOT = Path(__file__).resolve().parent
+REPO = ROOT.parent
+RESULTS = REPO / "docs" / "RESULTS.md"
 FLEETS = {"antipodal_10": ROOT / "benchmarks" / "antipodal_10.toml",
           "random_box_20": ROOT / "benchmarks" / "random_box_20.toml"}
+PAPER = ("six_neos", "eight_fireflys_stacked", "eight_mixed_transitions", "ten_mixed_rest")
+BACKENDS = ("ideal", "mjx")
 COLLISION_MODES = ("paper", "barrier", "constraint", "barrier+constraint")
 FAULTS = {
     "20% message loss": {"enabled": True, "message_loss": 0.2},
@@ -47,13 +66,85 @@ FAULTS = {
     "one frozen robot": {"enabled": True, "frozen_robot": 0, "frozen_at_s": 2.0,
                          "frozen_mode": "silent"},
 }
+STUDIES = ("paper", "collision", "faults")
+
+# The page: one section per study, in this order.
+TITLES = {"paper": "The paper's four scenarios", "collision": "Collision modes",
+          "faults": "Faults"}
+INTRO = """\
+# Results
+
+The studies' tables, written by `make studies` (experiments/studies.py) from the tables
+it leaves in sweeps/studies/. `python experiments/studies.py results` rebuilds this page
+from those tables without running anything. Each table's first line names the command
+that produced it, the machine and the date; the notes under a table are written by hand
+and kept when the page is rebuilt.
+
+Success: every robot reached every waypoint and no pair's exact separation fell below
+rho_ij = r_i + r_j. min d/rho: the smallest ratio of separation to rho_ij over all pairs,
+all times and all runs of the row (below 1 is a collision). Definitions of every figure:
+docs/DESIGN.md (metrics.json, sweep.csv).
+"""
+DEFAULT_NOTES = {
+    "paper": "Separation is exact in continuous time from the executed polynomial pieces "
+             "(ideal) and checked at every physics step (mjx). Replan: wall time of one fleet "
+             "replan (all robots), median / p95. Run: wall time after compilation.",
+    "collision": "Seeds 0..N-1 per row; antipodal_10: 10 mixed Fireflys and Neos swap to the "
+                 "antipodal points of a 4 m sphere; random_box_20: 20 robots, random starts "
+                 "and goals in a box (30 s runs).",
+    "faults": "Each fault of `[faults]` alone, default settings. Success excepts the frozen "
+              "robot; a collision with it still counts.",
+}
 
 
 def _slug(s: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in s).strip("_")
 
 
+def machine() -> str:
+    """One line naming this machine: CPU count and model, OS, JAX's default backend."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    model = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    cpu = f"{cores}-core CPU" + (f" ({model})" if model else "")
+    try:
+        import jax
+
+        backend = jax.default_backend()
+        if backend != "cpu":
+            dev = jax.devices()[0]
+            cpu += f", {backend.upper()} {getattr(dev, 'device_kind', '')}".rstrip()
+    except Exception:  # noqa: BLE001 - the page must be writable without JAX
+        pass
+    return f"{cpu}, {platform.system()} {platform.machine()}"
+
+
+def _today() -> str:
+    return datetime.datetime.now(datetime.UTC).date().isoformat()
+
+
+# ---------------------------------------------------------------------------------------
+# collision / faults: sweeps
+# ---------------------------------------------------------------------------------------
+
+
 def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults=None) -> dict:
+    import csv
+    import tomllib
+
+    from jaxplan.config import parse_config
+    from jaxplan.sweep import run_sweep
+
     doc = tomllib.loads(base.read_text())
     doc.setdefault("planner", {}).update(planner or {})
     if faults:
@@ -78,16 +169,7 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
     }
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("study", choices=("collision", "faults"))
-    ap.add_argument("--seeds", type=int, default=20, help="seeds per cell (default 20)")
-    ap.add_argument("--out", type=Path, default=Path("sweeps/studies"))
-    ap.add_argument("--batch", type=int, default=None,
-                    help="runs per compiled batch (default: jaxplan.sweep's, one per CPU device)")
-    ap.add_argument("--fleets", nargs="+", choices=tuple(FLEETS), default=tuple(FLEETS))
-    ap.add_argument("--only", nargs="+", help="only these settings (mode or fault names)")
-    a = ap.parse_args(argv)
+def _sweep_study(a) -> tuple[str, dict]:
     if a.study == "collision":
         settings = {m: {"planner": {"collision": m}} for m in COLLISION_MODES}
         head = "collision mode"
@@ -95,6 +177,10 @@ def main(argv=None) -> int:
         settings = {k: {"faults": v} for k, v in FAULTS.items()}
         head = "fault"
     if a.only:
+        unknown = [k for k in a.only if k not in settings]
+        if unknown:
+            raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
+                             f"{', '.join(repr(k) for k in settings)}")
         settings = {k: v for k, v in settings.items() if k in a.only}
     results = {}
     t0 = time.perf_counter()
@@ -103,21 +189,151 @@ def main(argv=None) -> int:
             out = a.out / a.study / f"{_slug(name)}__{fleet}__{a.seeds}seeds"
             print(f"[{time.perf_counter() - t0:7.0f} s] {name} / {fleet} -> {out}", flush=True)
             results[f"{name} | {fleet}"] = _cell(FLEETS[fleet], a.seeds, out, a.batch, **kw)
-    lines = [f"| {head} | fleet | runs | success | runs with collisions | collisions "
-             "| min separation ratio | median makespan (s) |",
+    lines = [f"| {head} | fleet | runs | success | runs with collisions | colliding pairs "
+             "| min d/rho | median makespan (s) |",
              "|---|---|---|---|---|---|---|---|"]
     for key, r in results.items():
         name, fleet = key.split(" | ")
         mk = "n/a" if r["makespan_median_s"] is None else f"{r['makespan_median_s']:.2f}"
-        lines.append(f"| {name} | {fleet} | {r['runs']} | {100 * r['success_rate']:.0f}% | "
+        shown = f"**{name}** (default)" if name == "barrier+constraint" else name
+        lines.append(f"| {shown} | {fleet} | {r['runs']} | {100 * r['success_rate']:.0f}% | "
                      f"{r['runs_with_collisions']} | {r['collisions_total']} | "
                      f"{r['min_separation_ratio']:.3f} | {mk} |")
-    table = "\n".join(lines)
-    print(table)
-    a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / f"{a.study}.md").write_text(table + "\n")
-    (a.out / f"{a.study}.json").write_text(json.dumps(results, indent=1) + "\n")
-    print(f"total {time.perf_counter() - t0:.0f} s; table in {a.out / (a.study + '.md')}")
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return "\n".join(lines), results
+
+
+# ---------------------------------------------------------------------------------------
+# paper: runs through the `jaxplan` command (run directories)
+# ---------------------------------------------------------------------------------------
+
+
+def _paper_study(a) -> tuple[str, dict]:
+    names = PAPER
+    if a.only:
+        unknown = [k for k in a.only if k not in PAPER]
+        if unknown:
+            raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
+                             f"{', '.join(PAPER)}")
+        names = tuple(n for n in PAPER if n in a.only)
+    results = {}
+    t0 = time.perf_counter()
+    for name in names:
+        for backend in a.backends:
+            out = a.out / "paper" / f"{name}__{backend}"
+            mpath = out / "metrics.json"
+            if not mpath.exists():  # metrics.json marks a complete run directory
+                cmd = [sys.executable, "-m", "jaxplan", "run", str(ROOT / "paper" / f"{name}.toml"),
+                       "--out", str(out), "--backend", backend, "--quiet", "--no-figures"]
+                print(f"[{time.perf_counter() - t0:7.0f} s] {name} / {backend} -> {out}",
+                      flush=True)
+                subprocess.run(cmd, check=True)
+            results[f"{name} | {backend}"] = json.loads(mpath.read_text())
+    f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)  # noqa: E731
+    lines = ["| scenario | backend | success | reached | collisions | min d/rho | makespan (s) "
+             "| peak speed / v_max | replan ms (median / p95) | tracking cm (rms / max) "
+             "| run (s) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for key, m in results.items():
+        name, backend = key.split(" | ")
+        reached = sum(bool(r["reached"]) for r in m["per_robot"])
+        s = m["solver"]
+        tr = m.get("tracking")
+        track = "-" if not tr else f"{100 * tr['rms_m']:.1f} / {100 * tr['max_m']:.1f}"
+        label = f"{name} ({m['duration_s']:g} s)"
+        lines.append(
+            f"| {label} | {backend} | {'yes' if m['success'] else 'no'} | "
+            f"{reached} / {m['robots']} | {m['collisions']} | {f(m['min_separation_ratio'])} | "
+            f"{f(m['makespan_s'], '{:.2f}')} | {f(m['peak_speed_over_limit'])} | "
+            f"{f(s['median_ms'], '{:.1f}')} / {f(s['p95_ms'], '{:.1f}')} | {track} | "
+            f"{f(m['run_s'], '{:.2f}')} |")
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return "\n".join(lines), {k: {kk: m.get(kk) for kk in (
+        "success", "collisions", "min_separation_ratio", "makespan_s", "run_s", "compile_s")}
+        for k, m in results.items()}
+
+
+# ---------------------------------------------------------------------------------------
+# docs/RESULTS.md
+# ---------------------------------------------------------------------------------------
+
+
+def _block(text: str, tag: str) -> str | None:
+    """The text between ``<!-- tag -->`` and ``<!-- /tag -->`` in ``text`` (stripped)."""
+    m = re.search(rf"<!-- {re.escape(tag)} -->\n(.*?)<!-- /{re.escape(tag)} -->", text, re.S)
+    return m.group(1).strip() if m else None
+
+
+def _table_from_out(out: Path, study: str) -> str | None:
+    """The header line and table of ``study`` under ``out``, or None when it has none."""
+    md = out / f"{study}.md"
+    if not md.exists():
+        return None
+    table = md.read_text().strip()
+    meta_path = out / f"{study}.meta.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    command = meta.get("command", f"python experiments/studies.py {study}")
+    host = meta.get("machine", "machine not recorded")
+    date = meta.get("date") or datetime.datetime.fromtimestamp(
+        md.stat().st_mtime, datetime.UTC).date().isoformat()
+    return f"`{command}` (`make studies`); {host}; {date}.\n\n{table}"
+
+
+def write_results(out: Path, path: Path = RESULTS) -> Path:
+    """(Re)write the results page ``path`` from the tables under ``out``; the notes and the
+    tables of studies that ``out`` lacks are kept from the page as it is."""
+    old = path.read_text() if path.exists() else ""
+    parts = [INTRO]
+    for study in STUDIES:
+        table = _table_from_out(out, study) or _block(old, f"table:{study}") or (
+            f"Not measured yet: `python experiments/studies.py {study}`.")
+        notes = _block(old, f"notes:{study}")
+        if notes is None:
+            notes = DEFAULT_NOTES[study]
+        parts.append(f"## {TITLES[study]}\n\n<!-- table:{study} -->\n{table}\n"
+                     f"<!-- /table:{study} -->\n\n<!-- notes:{study} -->\n{notes}\n"
+                     f"<!-- /notes:{study} -->\n")
+    text = "\n".join(parts)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("study", choices=(*STUDIES, "results"),
+                    help="a study to run, or 'results': rebuild --results from the tables "
+                         "under --out without running anything")
+    ap.add_argument("--seeds", type=int, default=20, help="seeds per cell (default 20)")
+    ap.add_argument("--out", type=Path, default=Path("sweeps/studies"),
+                    help="where the cells and tables go (default sweeps/studies)")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="runs per compiled batch (default: jaxplan.sweep's, one per CPU device)")
+    ap.add_argument("--fleets", nargs="+", choices=tuple(FLEETS), default=tuple(FLEETS))
+    ap.add_argument("--backends", nargs="+", choices=BACKENDS, default=BACKENDS,
+                    help="paper: the backends to run (default both)")
+    ap.add_argument("--only", nargs="+",
+                    help="only these settings (collision modes, fault names, or paper scenarios)")
+    ap.add_argument("--results", type=Path, default=RESULTS,
+                    help="the results page to (re)write (default docs/RESULTS.md)")
+    ap.add_argument("--no-results", action="store_true",
+                    help="do not rewrite the results page after the study")
+    a = ap.parse_args(argv)
+    if a.study != "results":
+        table, aggregates = (_paper_study if a.study == "paper" else _sweep_study)(a)
+        print(table)
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / f"{a.study}.md").write_text(table + "\n")
+        (a.out / f"{a.study}.json").write_text(json.dumps(aggregates, indent=1) + "\n")
+        argv_shown = sys.argv[1:] if argv is None else list(argv)
+        meta = {"command": shlex.join(["python", "experiments/studies.py", *argv_shown]),
+                "machine": machine(), "date": _today()}
+        (a.out / f"{a.study}.meta.json").write_text(json.dumps(meta, indent=1) + "\n")
+        print(f"table in {a.out / (a.study + '.md')}")
+    if a.study == "results" or not a.no_results:
+        print(f"wrote {write_results(a.out, a.results)}")
     return 0
 
 
