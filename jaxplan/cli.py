@@ -1,4 +1,5 @@
-"""The `jaxplan` command (DESIGN.md "The command").
+"""The `jaxplan` command line: argument parsing, the subcommands, the compilation cache
+(docs/DESIGN.md, "The command").
 
     jaxplan run CONFIG.toml [--out DIR]        one experiment -> a run directory
     jaxplan sweep CONFIG.toml [--out DIR]      a grid of weights x scenarios x seeds
@@ -27,6 +28,8 @@ BENCHES = ("predict", "solver", "sim", "all")
 CACHE_ENV = "JAXPLAN_CACHE_DIR"
 CACHE_MAX_BYTES = 1 << 30  # jaxplan's own cache directory: 1 GiB (a run's entry is ~1-2 MB)
 CACHE_MAX_ENV = "JAX_COMPILATION_CACHE_MAX_SIZE"  # JAX's own setting, in bytes (-1: no limit)
+CACHE_ENTRY_SUFFIX = "-cache"  # file names JAX's size-bounded cache directory uses
+CACHE_ATIME_SUFFIX = "-atime"
 
 
 class _Fail(Exception):
@@ -115,13 +118,14 @@ def _use_compile_cache(off: bool) -> str | None:
 
 def _stamp_unstamped(d: Path) -> None:
     """Give every entry of cache directory ``d`` that has no access-time file one (its
-    modification time), so that JAX's size-bounded cache (jax._src.lru_cache, which
-    reads one per entry when it evicts) can manage entries written without a bound
-    (jaxplan before it set one)."""
-    from jax._src import lru_cache
+    modification time), so that JAX's size-bounded cache, which reads one per entry when
+    it evicts, can manage entries written without a bound (jaxplan before it set one).
 
-    for entry in d.glob(f"*{lru_cache._CACHE_SUFFIX}"):
-        stamp = d / (entry.name.removesuffix(lru_cache._CACHE_SUFFIX) + lru_cache._ATIME_SUFFIX)
+    JAX stores an entry as ``<key>-cache`` and its last access as ``<key>-atime`` (8 bytes,
+    nanoseconds, little-endian): :data:`CACHE_ENTRY_SUFFIX`, :data:`CACHE_ATIME_SUFFIX`.
+    """
+    for entry in d.glob(f"*{CACHE_ENTRY_SUFFIX}"):
+        stamp = d / (entry.name.removesuffix(CACHE_ENTRY_SUFFIX) + CACHE_ATIME_SUFFIX)
         if not stamp.exists():
             try:
                 stamp.write_bytes(entry.stat().st_mtime_ns.to_bytes(8, "little"))

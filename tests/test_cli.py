@@ -236,3 +236,14 @@ def test_the_cache_bound_defaults_to_jaxplans_and_yields_to_jaxs(monkeypatch, tm
     finally:
         jax.config.update("jax_compilation_cache_dir", before[0])
         jax.config.update("jax_compilation_cache_max_size", before[1])
+
+
+def test_cache_file_suffixes_are_jaxs():
+    """cli stamps cache entries by file name; the names must be the ones JAX's bounded
+    cache reads (checked here against JAX's own module, which jaxplan does not import)."""
+    from jax._src import lru_cache
+
+    from jaxplan import cli
+
+    assert cli.CACHE_ENTRY_SUFFIX == lru_cache._CACHE_SUFFIX
+    assert cli.CACHE_ATIME_SUFFIX == lru_cache._ATIME_SUFFIX
