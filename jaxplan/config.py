@@ -1,4 +1,5 @@
-"""TOML configs -> frozen, validated dataclasses, every default resolved (DESIGN.md, Config).
+"""TOML configs -> frozen, validated pydantic dataclasses, every default resolved
+(docs/DESIGN.md, "Config").
 
     name = "six_neos"                 # default: the file's stem ("config" for strings)
     description = ""                  # free text
@@ -11,11 +12,12 @@
                goal_speed_tolerance_mps
     [[robots]] vehicle, start, goal | waypoints, goal_velocity, end_state
     [scenario] kind = "paper:<name>" | "antipodal_sphere" | "random_box" | "grid_swap"
-               | "stacked", and the generator's keys (see GENERATOR_KEYS)
+               | "stacked", and the generator's keys (its parameter model in
+               jaxplan/scenarios.py, e.g. RandomBoxParams)
     [sweep]    q_obs, q_lim (lists or {log_min, log_max, num}, base-10 exponents),
                seeds (list or {start, num}), scenarios (registry names)
     [faults]   enabled, message_loss, latency_s, noise_sigma_m, frozen_robot, frozen_at_s,
-               frozen_mode (jaxplan.faults; off by default)
+               frozen_mode (jaxplan/faults.py; off by default)
 
 Robots: ``goal = [x, y, z]`` (one goal) or ``waypoints = [[x, y, z], ...]`` (several, in
 order; the fleet moves on when every robot reached waypoint w).  ``goal_velocity`` is
@@ -31,25 +33,52 @@ messages count from 0 (``robots[0]`` is the first ``[[robots]]``).  Positions ha
 key).  ``[[robots]]`` entries, if any, are appended after the generated robots.  The
 top-level ``seed`` seeds the generator.
 
-Every error is a :class:`ConfigError` whose message is one line,
-``<file>: <key>: <problem>``, raised before any computation.
+Each section is a pydantic dataclass (unknown keys forbidden, frozen, hashable; the field
+types are in jaxplan/fields.py).  Every error is a :class:`ConfigError` whose message is
+one line, ``<file>: <key>: <problem>``, raised before any computation: pydantic's
+validation errors are translated into that form by :func:`_problem`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
-import math
+import functools
 import re
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import tomli_w
+from pydantic import (
+    AfterValidator,
+    BeforeValidator,
+    ConfigDict,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+from pydantic.dataclasses import dataclass
 
-from jaxplan import scenarios as _sc
-from jaxplan.scenarios import END_STATES, MAX_ROBOTS, Scenario, ScenarioError
+from jaxplan import scenarios
+from jaxplan.fields import (
+    MAX_ROBOTS,
+    Corners,
+    Dimension,
+    EndState,
+    FieldProblem,
+    Position,
+    VehicleName,
+    integer,
+    number,
+    one_of,
+    show,
+    string,
+)
+from jaxplan.scenarios import GENERATOR_PARAMS, PAPER_SCENARIOS, SCENARIOS, Scenario, ScenarioError
 from jaxplan.vehicles import VEHICLES
 
 __all__ = [
@@ -64,6 +93,7 @@ __all__ = [
     "FaultsConfig",
     "load_config",
     "parse_config",
+    "config_to_dict",
     "config_to_toml",
     "build_scenario",
     "COLLISION_MODES",
@@ -80,9 +110,9 @@ DEFAULT_Q_OBS = 10.0                     # collision weight
 DEFAULT_Q_LIM = 2.0                      # soft-limit weight (tuned with k_t: peak speed ~ v_max)
 DEFAULT_K_T = 6.0                        # time weight (k_t / q_lim = 3: cruise at ~v_max)
 DEFAULT_K_P = 5.0                        # 1/m, collision decay rate exp(-K_p (d - rho))
-DEFAULT_COLLISION = "barrier+constraint"  # the literal "paper" term cannot avoid (MATH.md 2)
+DEFAULT_COLLISION = "barrier+constraint"  # the literal "paper" term cannot avoid (docs/MATH.md 2)
 DEFAULT_DEGREE = 5
-DEFAULT_SEGMENTS = 2                     # rest ends need shape freedom (MATH.md 2); paper: 1
+DEFAULT_SEGMENTS = 2                     # rest ends need shape freedom (docs/MATH.md 2); paper: 1
 DEFAULT_END_STATE = "free"               # the paper's position-only end state
 DEFAULT_MAX_ITERS = 50                   # solver iterations per replan (bounded loop)
 DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tolerance
@@ -102,24 +132,27 @@ DEFAULT_GOAL_SPEED_TOLERANCE_MPS = 0.1   # residual speed allowed at a rest goal
 
 COLLISION_MODES = ("paper", "barrier", "constraint", "barrier+constraint")
 BACKENDS = ("ideal", "mjx")
+FROZEN_MODES = ("silent", "stale")
 MAX_DEGREE = 15
 MAX_SEGMENTS = 64
 MAX_SAMPLES = 4096
 MAX_SWEEP_POINTS = 10000
 MAX_SEED = 2**63 - 1
-MAX_COORD = 1e6                          # m or m/s: larger coordinates are a typo, not a plan
+MAX_ITERS = 1_000_000
 
 
 class ConfigError(ValueError):
     """An invalid config: one line ``<file>: <key>: <problem>``."""
 
 
+_SECTION = ConfigDict(extra="forbid")  # every section model: unknown keys are errors
+
 # ---------------------------------------------------------------------------------------
-# Dataclasses
+# Section models
 # ---------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_SECTION)
 class PlannerConfig:
     """[planner]: rates, NLP weights, collision treatment, trajectory shape, solver.
 
@@ -143,46 +176,86 @@ class PlannerConfig:
     rounding, which a closed loop can amplify into slightly different runs).
     """
 
-    replan_hz: float = DEFAULT_REPLAN_HZ
-    q_dynm: float = DEFAULT_Q_DYNM
-    q_obs: float = DEFAULT_Q_OBS
-    q_lim: float = DEFAULT_Q_LIM
-    k_t: float = DEFAULT_K_T
-    k_p: float = DEFAULT_K_P
-    collision: str = DEFAULT_COLLISION
-    degree: int = DEFAULT_DEGREE
-    segments: int = DEFAULT_SEGMENTS
-    end_state: str = DEFAULT_END_STATE
-    max_iters: int = DEFAULT_MAX_ITERS
-    tol: float = DEFAULT_TOL
-    n_samples: int = DEFAULT_N_SAMPLES
-    safety_margin_m: float = DEFAULT_SAFETY_MARGIN_M
-    max_neighbors: int = DEFAULT_MAX_NEIGHBORS
-    coast_samples: int = DEFAULT_COAST_SAMPLES
-    solver_pool: int = DEFAULT_SOLVER_POOL
+    replan_hz: number(gt=0.0) = DEFAULT_REPLAN_HZ
+    q_dynm: number(ge=0.0) = DEFAULT_Q_DYNM
+    q_obs: number(ge=0.0) = DEFAULT_Q_OBS
+    q_lim: number(ge=0.0) = DEFAULT_Q_LIM
+    k_t: number(ge=0.0) = DEFAULT_K_T
+    k_p: number(gt=0.0) = DEFAULT_K_P
+    collision: string(one_of(COLLISION_MODES)) = DEFAULT_COLLISION
+    degree: integer(ge=5, le=MAX_DEGREE) = DEFAULT_DEGREE
+    segments: integer(ge=1, le=MAX_SEGMENTS) = DEFAULT_SEGMENTS
+    end_state: EndState = DEFAULT_END_STATE
+    max_iters: integer(ge=1, le=MAX_ITERS) = DEFAULT_MAX_ITERS
+    tol: number(gt=0.0) = DEFAULT_TOL
+    n_samples: integer(ge=2, le=MAX_SAMPLES) = DEFAULT_N_SAMPLES
+    safety_margin_m: number(ge=0.0, le=10.0) = DEFAULT_SAFETY_MARGIN_M
+    max_neighbors: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_MAX_NEIGHBORS
+    coast_samples: integer(ge=0, le=MAX_COAST_SAMPLES) = DEFAULT_COAST_SAMPLES
+    solver_pool: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_SOLVER_POOL
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_SECTION)
 class LimitsConfig:
-    """[limits]: m/s, m/s^2, m/s^3 overrides for every robot; None = per-vehicle default."""
+    """[limits]: m/s, m/s^2, m/s^3 overrides for every robot; None (not given) = the
+    per-vehicle default.  TOML has no null: a given value must be a positive number."""
 
-    v_max: float | None = None
-    a_max: float | None = None
-    j_max: float | None = None
+    v_max: number(gt=0.0) = None
+    a_max: number(gt=0.0) = None
+    j_max: number(gt=0.0) = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_SECTION)
 class SimConfig:
     """[sim]: backend "ideal" | "mjx"; duration_s (s); physics_hz, control_hz (Hz,
     physics_hz / control_hz a whole number); goal_tolerance_m (m);
     goal_speed_tolerance_mps (m/s, residual speed allowed at a rest goal)."""
 
-    backend: str = DEFAULT_BACKEND
-    duration_s: float = DEFAULT_DURATION_S
-    physics_hz: float = DEFAULT_PHYSICS_HZ
-    control_hz: float = DEFAULT_CONTROL_HZ
-    goal_tolerance_m: float = DEFAULT_GOAL_TOLERANCE_M
-    goal_speed_tolerance_mps: float = DEFAULT_GOAL_SPEED_TOLERANCE_MPS
+    backend: string(one_of(BACKENDS)) = DEFAULT_BACKEND
+    duration_s: number(gt=0.0) = DEFAULT_DURATION_S
+    physics_hz: number(gt=0.0) = DEFAULT_PHYSICS_HZ
+    control_hz: number(gt=0.0) = DEFAULT_CONTROL_HZ
+    goal_tolerance_m: number(gt=0.0) = DEFAULT_GOAL_TOLERANCE_M
+    goal_speed_tolerance_mps: number(gt=0.0) = DEFAULT_GOAL_SPEED_TOLERANCE_MPS
+
+    @model_validator(mode="after")
+    def _whole_steps_per_control(self) -> SimConfig:
+        ratio = self.physics_hz / self.control_hz
+        if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+            raise FieldProblem(f"physics_hz / control_hz must be a whole number >= 1 (the "
+                               f"controller runs every k-th physics step), got "
+                               f"{self.physics_hz:g} / {self.control_hz:g}", key="control_hz")
+        return self
+
+
+def _below_one(x: float) -> float:
+    if x >= 1.0:
+        raise FieldProblem(f"must be < 1 (a probability), got {x}")
+    return x
+
+
+def _at_most_ten_seconds(x: float) -> float:
+    if x > 10.0:
+        raise FieldProblem(f"must be <= 10 s, got {x}")
+    return x
+
+
+Probability = Annotated[number(ge=0.0), AfterValidator(_below_one)]
+ShortDelay = Annotated[number(ge=0.0), AfterValidator(_at_most_ten_seconds)]
+
+
+@dataclass(frozen=True, config=_SECTION)
+class FaultsConfig:
+    """[faults] (jaxplan/faults.py): all off by default; ``enabled`` switches the faulty
+    channel on (a different compiled program)."""
+
+    enabled: bool = False
+    message_loss: Probability = 0.0  # per (observer, sender, period), in [0, 1)
+    latency_s: ShortDelay = 0.0  # s, rounded to whole replan periods
+    noise_sigma_m: number(ge=0.0) = 0.0  # m per axis on every received position
+    frozen_robot: integer(ge=-1) = -1  # index of the robot that stops responding; -1: none
+    frozen_at_s: number(ge=0.0) = 0.0  # s
+    frozen_mode: string(one_of(FROZEN_MODES)) = "silent"  # "silent" | "stale" (keeps sending)
 
 
 @dataclass(frozen=True)
@@ -193,25 +266,23 @@ class RobotConfig:
     "free" | "rest"; goal_velocity: W entries, each (N,) m/s or None.
     """
 
-    vehicle: str
-    start: tuple[float, ...]
-    waypoints: tuple[tuple[float, ...], ...]
-    end_state: tuple[str, ...]
-    goal_velocity: tuple[tuple[float, ...] | None, ...]
+    vehicle: VehicleName
+    start: Position
+    waypoints: tuple[Position, ...]
+    end_state: tuple[EndState, ...]
+    goal_velocity: tuple[Position | None, ...]
 
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    """[scenario], resolved: kind and every generator parameter (defaults filled in).
-
-    params: (key, value) pairs in GENERATOR_KEYS order; vectors are tuples.
-    """
+    """[scenario], resolved: kind and, for a generator, its parameter model with every
+    default filled in (None for the paper's four, which take no parameters)."""
 
     kind: str
-    params: tuple[tuple[str, Any], ...] = ()
+    params: scenarios.AnyGeneratorParams | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return dict(self.params)
+        return {} if self.params is None else self.params.as_dict()
 
     def get(self, key: str, default: Any = None) -> Any:
         return self.as_dict().get(key, default)
@@ -232,18 +303,15 @@ class SweepConfig:
     scenarios: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True)
-class FaultsConfig:
-    """[faults] (jaxplan.faults): all off by default; ``enabled`` switches the faulty
-    channel on (a different compiled program)."""
+def _plain_name(name: str) -> str:
+    if not name.strip() or any(ch in name for ch in "/\\\n\r\t\0"):
+        raise FieldProblem(f"must be a non-empty name without slashes or control "
+                           f"characters, got {show(name)}")
+    return name
 
-    enabled: bool = False
-    message_loss: float = 0.0  # probability per (observer, sender, period), in [0, 1)
-    latency_s: float = 0.0  # s, rounded to whole replan periods
-    noise_sigma_m: float = 0.0  # m per axis on every received position
-    frozen_robot: int = -1  # index of the robot that stops responding; -1: none
-    frozen_at_s: float = 0.0  # s
-    frozen_mode: str = "silent"  # "silent" (stops sending) | "stale" (keeps sending)
+
+Name = string(AfterValidator(_plain_name))
+Seed = integer(ge=0, le=MAX_SEED)
 
 
 @dataclass(frozen=True)
@@ -251,9 +319,9 @@ class Config:
     """A whole experiment, validated and resolved.  ``source`` is where it came from
     (not part of equality)."""
 
-    name: str
+    name: Name
     description: str
-    seed: int
+    seed: Seed
     planner: PlannerConfig
     limits: LimitsConfig
     sim: SimConfig
@@ -261,7 +329,7 @@ class Config:
     scenario: ScenarioConfig | None
     sweep: SweepConfig
     faults: FaultsConfig
-    source: str = field(default="<string>", compare=False)
+    source: str = dataclasses.field(default="<string>", compare=False)
 
     @property
     def dim(self) -> int:
@@ -271,210 +339,128 @@ class Config:
         return len(self.robots[0].start)
 
 
+_TOP_KEYS = ("name", "description", "seed", "planner", "limits", "sim", "robots",
+             "scenario", "sweep", "faults")
+_ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
+FAULT_KEYS = tuple(FaultsConfig.__dataclass_fields__)
+# Each generator's keys, in the order they are written out (declared in jaxplan/scenarios.py).
+GENERATOR_KEYS: dict[str, tuple[str, ...]] = {
+    kind: params.keys() for kind, params in GENERATOR_PARAMS.items()}
+
 # ---------------------------------------------------------------------------------------
-# Primitive checks
+# Validation errors -> one line
 # ---------------------------------------------------------------------------------------
 
 
-def _show(v: Any) -> str:
-    try:
-        s = repr(v)
-    except Exception:  # noqa: BLE001 - a hostile __repr__ must not escape
-        s = f"<{type(v).__name__}>"
-    s = " ".join(s.split())
-    return s if len(s) <= 60 else s[:57] + "..."
+class _Invalid(Exception):
+    """A problem found while parsing: the key path and the problem (no file yet)."""
 
-
-def _type_name(v: Any) -> str:
-    return {bool: "a boolean", int: "an integer", float: "a number", str: "a string",
-            list: "an array", dict: "a table"}.get(type(v), type(v).__name__)
-
-
-class _Ctx:
-    def __init__(self, source: str):
-        self.source = source if source.isprintable() else _show(source)
-
-    def err(self, key: str, msg: str) -> ConfigError:
-        msg = " ".join(str(msg).split())
-        key = key if key.isprintable() else _show(key)
-        return ConfigError(f"{self.source}: {key}: {msg}" if key else f"{self.source}: {msg}")
-
-    def table(self, v: Any, key: str) -> dict:
-        if not isinstance(v, dict):
-            raise self.err(key, f"expected a table, got {_show(v)}")
-        for k in v:
-            if not isinstance(k, str):
-                raise self.err(key, f"expected string keys, got {_show(k)}")
-        return v
-
-    def keys(self, table: dict, allowed, prefix: str) -> None:
-        allowed = list(allowed)
-        for k in table:
-            if k not in allowed:
-                near = difflib.get_close_matches(k, allowed, n=1, cutoff=0.6)
-                hint = f"; did you mean {near[0]!r}?" if near else \
-                    f"; valid keys: {', '.join(allowed)}"
-                shown = k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _show(k)
-                raise self.err(_join(prefix, shown), f"unknown key{hint}")
-
-    def number(self, v: Any, key: str, *, gt: float | None = None, ge: float | None = None,
-               le: float | None = None) -> float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.err(key, f"expected a number, got {_show(v)}")
-        try:
-            x = float(v)
-        except OverflowError:
-            raise self.err(key, f"number out of range: {_show(v)}") from None
-        if not math.isfinite(x):
-            raise self.err(key, f"expected a finite number, got {_show(v)}")
-        if gt is not None and not x > gt:
-            raise self.err(key, f"must be > {gt:g}, got {_show(v)}")
-        if ge is not None and not x >= ge:
-            raise self.err(key, f"must be >= {ge:g}, got {_show(v)}")
-        if le is not None and not x <= le:
-            raise self.err(key, f"must be <= {le:g}, got {_show(v)}")
-        return x
-
-    def integer(self, v: Any, key: str, *, ge: int | None = None, le: int | None = None) -> int:
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.err(key, f"expected an integer, got {_show(v)}")
-        if ge is not None and v < ge:
-            raise self.err(key, f"must be >= {ge}, got {_show(v)}")
-        if le is not None and v > le:
-            raise self.err(key, f"must be <= {le}, got {_show(v)}")
-        return int(v)
-
-    def string(self, v: Any, key: str, choices=None) -> str:
-        if not isinstance(v, str):
-            raise self.err(key, f"expected a string, got {_show(v)}")
-        if choices is not None and v not in choices:
-            near = difflib.get_close_matches(v, list(choices), n=1, cutoff=0.6)
-            hint = f" (did you mean {near[0]!r}?)" if near else ""
-            raise self.err(key, f"unknown value {_show(v)}{hint}; choose one of "
-                                f"{', '.join(repr(c) for c in choices)}")
-        return v
-
-    def boolean(self, v: Any, key: str) -> bool:
-        if not isinstance(v, bool):
-            raise self.err(key, f"expected true or false, got {_show(v)}")
-        return v
-
-    def vector(self, v: Any, key: str, dim: int | None = None) -> tuple[float, ...]:
-        """A position/velocity: 2 or 3 finite numbers (exactly dim when given)."""
-        if not isinstance(v, (list, tuple)):
-            raise self.err(key, f"expected an array of 2 or 3 numbers, got {_show(v)}")
-        if dim is not None and len(v) != dim:
-            raise self.err(key, f"expected {dim} coordinates (the config is {dim}-D; "
-                                f"mixing 2-D and 3-D positions is not allowed), got {len(v)}")
-        if len(v) not in (2, 3):
-            raise self.err(key, f"expected 2 or 3 coordinates, got {len(v)}")
-        return tuple(self.number(x, f"{key}[{i}]", ge=-MAX_COORD, le=MAX_COORD)
-                     for i, x in enumerate(v))
-
-    def vehicle(self, v: Any, key: str) -> str:
-        return self.string(v, key, choices=tuple(VEHICLES))
-
-    def name_list(self, v: Any, key: str, choices) -> tuple[str, ...]:
-        if isinstance(v, str):
-            v = [v]
-        if not isinstance(v, (list, tuple)) or not v:
-            raise self.err(key, f"expected a non-empty array of names, got {_show(v)}")
-        return tuple(self.string(x, f"{key}[{i}]", choices) for i, x in enumerate(v))
+    def __init__(self, key: str, message: str):
+        super().__init__(message)
+        self.key = key
+        self.message = message
 
 
 def _join(prefix: str, key: str) -> str:
-    return f"{prefix}.{key}" if prefix else key
+    if not prefix or not key:
+        return prefix or key
+    return prefix + key if key.startswith("[") else f"{prefix}.{key}"
+
+
+def _key_path(prefix: str, loc: tuple) -> str:
+    for part in loc:
+        prefix = _join(prefix, f"[{part}]" if isinstance(part, int) else str(part))
+    return prefix
+
+
+def _bound(x: float | int) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
+_COMPARISONS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="),
+                "less_than": ("lt", "<"), "less_than_equal": ("le", "<=")}
+_UNKNOWN_KEY = ("unexpected_keyword_argument", "extra_forbidden")
+_WRONG_TYPE = {"float_type": "a number", "int_type": "an integer", "string_type": "a string",
+               "finite_number": "a finite number"}
+
+
+def _unknown_key(key: str, allowed: tuple[str, ...], prefix: str) -> _Invalid:
+    near = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
+    hint = f"; did you mean {near[0]!r}?" if near else f"; valid keys: {', '.join(allowed)}"
+    shown = key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else show(key)
+    return _Invalid(_join(prefix, shown), f"unknown key{hint}")
+
+
+def _check_keys(table: dict, allowed: tuple[str, ...], prefix: str) -> None:
+    for k in table:
+        if k not in allowed:
+            raise _unknown_key(k, allowed, prefix)
+
+
+def _table(v: Any, key: str) -> dict:
+    if not isinstance(v, dict):
+        raise _Invalid(key, f"expected a table, got {show(v)}")
+    for k in v:
+        if not isinstance(k, str):
+            raise _Invalid(key, f"expected string keys, got {show(k)}")
+    return v
+
+
+def _problem(error: dict, key: str, allowed: tuple[str, ...], missing: str) -> _Invalid:
+    """One pydantic error (of a value at ``key``) in the config's own words."""
+    kind, v, loc = error["type"], error.get("input"), tuple(error["loc"])
+    ctx = error.get("ctx") or {}
+    if kind in _UNKNOWN_KEY:
+        return _unknown_key(str(loc[-1]), allowed, _key_path(key, loc[:-1]))
+    path = _key_path(key, loc)
+    if kind == "value_error" and isinstance(ctx.get("error"), FieldProblem):
+        return _Invalid(_join(path, ctx["error"].key), str(ctx["error"]))
+    if kind == "missing":
+        return _Invalid(path, missing)
+    if kind == "float_type" and isinstance(v, int) and not isinstance(v, bool):
+        return _Invalid(path, f"number out of range: {show(v)}")
+    if kind in _WRONG_TYPE:
+        return _Invalid(path, f"expected {_WRONG_TYPE[kind]}, got {show(v)}")
+    if kind == "bool_type":
+        return _Invalid(path, f"expected true or false, got {show(v)}")
+    if kind in ("dataclass_type", "dict_type"):
+        return _Invalid(path, f"expected a table, got {show(v)}")
+    if kind in _COMPARISONS:
+        name, op = _COMPARISONS[kind]
+        return _Invalid(path, f"must be {op} {_bound(ctx[name])}, got {show(v)}")
+    return _Invalid(path, f"{error['msg']}, got {show(v)}")  # pragma: no cover - a new type
+
+
+def _priority(error: dict, missing_first: bool) -> int:
+    """Unknown keys first, then (``missing_first``) missing ones, then the rest, each in
+    declaration order."""
+    if error["type"] in _UNKNOWN_KEY:
+        return 0
+    return 1 if missing_first and error["type"] == "missing" else 2
+
+
+@functools.cache
+def _adapter(schema: Any) -> TypeAdapter:
+    return TypeAdapter(schema)
+
+
+def _validate(schema: Any, value: Any, key: str, *, dim: int | None = None,
+              missing: str = "missing", missing_first: bool = False) -> Any:
+    """``value`` validated by ``schema`` (a model or an annotated type; ``dim``: the N
+    vectors must have), or :class:`_Invalid` with the first problem (``missing``: the
+    text for a missing key)."""
+    try:
+        return _adapter(schema).validate_python(value, context={"dim": dim})
+    except ValidationError as e:
+        first = min(e.errors(include_url=False), key=lambda x: _priority(x, missing_first))
+        allowed = tuple(f.name for f in dataclasses.fields(schema)) \
+            if dataclasses.is_dataclass(schema) else ()
+        raise _problem(first, key, allowed, missing) from None
 
 
 # ---------------------------------------------------------------------------------------
-# Sections
+# Robots
 # ---------------------------------------------------------------------------------------
-
-_TOP_KEYS = ("name", "description", "seed", "planner", "limits", "sim", "robots",
-             "scenario", "sweep", "faults")
-
-
-def _parse_planner(c: _Ctx, raw: Any) -> PlannerConfig:
-    t = c.table(raw, "planner")
-    c.keys(t, PlannerConfig.__dataclass_fields__, "planner")
-    d = PlannerConfig()
-    g = lambda k: t.get(k, getattr(d, k))  # noqa: E731
-    return PlannerConfig(
-        replan_hz=c.number(g("replan_hz"), "planner.replan_hz", gt=0),
-        q_dynm=c.number(g("q_dynm"), "planner.q_dynm", ge=0),
-        q_obs=c.number(g("q_obs"), "planner.q_obs", ge=0),
-        q_lim=c.number(g("q_lim"), "planner.q_lim", ge=0),
-        k_t=c.number(g("k_t"), "planner.k_t", ge=0),
-        k_p=c.number(g("k_p"), "planner.k_p", gt=0),
-        collision=c.string(g("collision"), "planner.collision", COLLISION_MODES),
-        degree=c.integer(g("degree"), "planner.degree", ge=5, le=MAX_DEGREE),
-        segments=c.integer(g("segments"), "planner.segments", ge=1, le=MAX_SEGMENTS),
-        end_state=c.string(g("end_state"), "planner.end_state", END_STATES),
-        max_iters=c.integer(g("max_iters"), "planner.max_iters", ge=1, le=1_000_000),
-        tol=c.number(g("tol"), "planner.tol", gt=0),
-        n_samples=c.integer(g("n_samples"), "planner.n_samples", ge=2, le=MAX_SAMPLES),
-        safety_margin_m=c.number(g("safety_margin_m"), "planner.safety_margin_m", ge=0, le=10),
-        max_neighbors=c.integer(g("max_neighbors"), "planner.max_neighbors", ge=0,
-                                le=MAX_ROBOTS),
-        coast_samples=c.integer(g("coast_samples"), "planner.coast_samples", ge=0,
-                                le=MAX_COAST_SAMPLES),
-        solver_pool=c.integer(g("solver_pool"), "planner.solver_pool", ge=0, le=MAX_ROBOTS),
-    )
-
-
-def _parse_limits(c: _Ctx, raw: Any) -> LimitsConfig:
-    t = c.table(raw, "limits")
-    c.keys(t, LimitsConfig.__dataclass_fields__, "limits")
-    return LimitsConfig(**{k: (c.number(t[k], f"limits.{k}", gt=0) if k in t else None)
-                           for k in ("v_max", "a_max", "j_max")})
-
-
-def _parse_sim(c: _Ctx, raw: Any) -> SimConfig:
-    t = c.table(raw, "sim")
-    c.keys(t, SimConfig.__dataclass_fields__, "sim")
-    d = SimConfig()
-    g = lambda k: t.get(k, getattr(d, k))  # noqa: E731
-    s = SimConfig(
-        backend=c.string(g("backend"), "sim.backend", BACKENDS),
-        duration_s=c.number(g("duration_s"), "sim.duration_s", gt=0),
-        physics_hz=c.number(g("physics_hz"), "sim.physics_hz", gt=0),
-        control_hz=c.number(g("control_hz"), "sim.control_hz", gt=0),
-        goal_tolerance_m=c.number(g("goal_tolerance_m"), "sim.goal_tolerance_m", gt=0),
-        goal_speed_tolerance_mps=c.number(g("goal_speed_tolerance_mps"),
-                                          "sim.goal_speed_tolerance_mps", gt=0),
-    )
-    ratio = s.physics_hz / s.control_hz
-    if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
-        raise c.err("sim.control_hz", f"physics_hz / control_hz must be a whole number >= 1 "
-                                      f"(the controller runs every k-th physics step), got "
-                                      f"{s.physics_hz:g} / {s.control_hz:g}")
-    return s
-
-
-FAULT_KEYS = ("enabled", "message_loss", "latency_s", "noise_sigma_m", "frozen_robot",
-              "frozen_at_s", "frozen_mode")
-
-
-def _parse_faults(c: _Ctx, raw: Any) -> FaultsConfig:
-    t = c.table(raw, "faults")
-    c.keys(t, FAULT_KEYS, "faults")
-    d = FaultsConfig()
-    enabled = c.boolean(t.get("enabled", d.enabled), "faults.enabled")
-    loss = c.number(t.get("message_loss", d.message_loss), "faults.message_loss", ge=0.0)
-    if loss >= 1.0:
-        raise c.err("faults.message_loss", f"must be < 1 (a probability), got {loss}")
-    lat = c.number(t.get("latency_s", d.latency_s), "faults.latency_s", ge=0.0)
-    if lat > 10.0:
-        raise c.err("faults.latency_s", f"must be <= 10 s, got {lat}")
-    noise = c.number(t.get("noise_sigma_m", d.noise_sigma_m), "faults.noise_sigma_m", ge=0.0)
-    frozen = c.integer(t.get("frozen_robot", d.frozen_robot), "faults.frozen_robot", ge=-1)
-    at = c.number(t.get("frozen_at_s", d.frozen_at_s), "faults.frozen_at_s", ge=0.0)
-    mode = c.string(t.get("frozen_mode", d.frozen_mode), "faults.frozen_mode",
-                    ("silent", "stale"))
-    return FaultsConfig(enabled, loss, lat, noise, frozen, at, mode)
-
-
-_ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
 
 
 class _RobotKeys:
@@ -492,271 +478,251 @@ class _RobotKeys:
             f"{self.prefix}.waypoints[{w}]"
 
 
-def _parse_robot(c: _Ctx, raw: Any, i: int, dim: int | None, default_end: str):
+def _parse_robot(raw: Any, i: int, dim: int | None,
+                 default_end: str) -> tuple[RobotConfig, _RobotKeys]:
     p = f"robots[{i}]"
-    t = c.table(raw, p)
-    c.keys(t, _ROBOT_KEYS, p)
+    t = _table(raw, p)
+    _check_keys(t, _ROBOT_KEYS, p)
     if "vehicle" not in t:
-        raise c.err(f"{p}.vehicle", f"missing; choose one of {', '.join(VEHICLES)}")
-    vehicle = c.vehicle(t["vehicle"], f"{p}.vehicle")
+        raise _Invalid(f"{p}.vehicle", f"missing; choose one of {', '.join(VEHICLES)}")
+    vehicle = _validate(VehicleName, t["vehicle"], f"{p}.vehicle")
     if "start" not in t:
-        raise c.err(f"{p}.start", "missing; give the start position [x, y, z]")
-    start = c.vector(t["start"], f"{p}.start", dim)
+        raise _Invalid(f"{p}.start", "missing; give the start position [x, y, z]")
+    start = _validate(Position, t["start"], f"{p}.start", dim=dim)
     dim = len(start)
     if ("goal" in t) == ("waypoints" in t):
-        raise c.err(f"{p}.goal", "give exactly one of 'goal' (one position) or 'waypoints' "
-                                 "(a list of positions)")
+        raise _Invalid(f"{p}.goal", "give exactly one of 'goal' (one position) or "
+                                    "'waypoints' (a list of positions)")
     if "goal" in t:
-        wps = (c.vector(t["goal"], f"{p}.goal", dim),)
-        goal_key = "goal"
+        waypoints = (_validate(Position, t["goal"], f"{p}.goal", dim=dim),)
     else:
-        raw_w = t["waypoints"]
-        if not isinstance(raw_w, (list, tuple)) or not raw_w:
-            raise c.err(f"{p}.waypoints", f"expected a non-empty array of positions, got "
-                                          f"{_show(raw_w)}")
-        wps = tuple(c.vector(w, f"{p}.waypoints[{k}]", dim) for k, w in enumerate(raw_w))
-        goal_key = "waypoints"
-    W = len(wps)
+        waypoints = _validate(_Waypoints, t["waypoints"], f"{p}.waypoints", dim=dim)
+    ends = _end_states(t.get("end_state", default_end), len(waypoints), f"{p}.end_state")
+    velocities = _goal_velocities(t, ends, dim, f"{p}.goal_velocity")
+    robot = RobotConfig(vehicle, start, waypoints, ends, velocities)
+    return robot, _RobotKeys(p, "goal" if "goal" in t else "waypoints")
 
-    ends_raw = t.get("end_state", default_end)
-    if isinstance(ends_raw, str):
-        ends = (c.string(ends_raw, f"{p}.end_state", END_STATES),) * W
-    elif isinstance(ends_raw, (list, tuple)):
-        if len(ends_raw) != W:
-            raise c.err(f"{p}.end_state", f"expected one entry per waypoint ({W}), got "
-                                          f"{len(ends_raw)}")
-        ends = tuple(c.string(e, f"{p}.end_state[{k}]", END_STATES)
-                     for k, e in enumerate(ends_raw))
-    else:
-        raise c.err(f"{p}.end_state", f"expected 'free', 'rest' or a list of them, got "
-                                      f"{_show(ends_raw)}")
 
+def _non_empty_positions(v: Any) -> tuple:
+    if not isinstance(v, (list, tuple)) or not v:
+        raise FieldProblem(f"expected a non-empty array of positions, got {show(v)}")
+    return tuple(v)
+
+
+_Waypoints = Annotated[tuple[Position, ...], BeforeValidator(_non_empty_positions)]
+
+
+def _end_states(raw: Any, W: int, key: str) -> tuple[str, ...]:
+    if isinstance(raw, str):
+        return (_validate(EndState, raw, key),) * W
+    if isinstance(raw, (list, tuple)):
+        if len(raw) != W:
+            raise _Invalid(key, f"expected one entry per waypoint ({W}), got {len(raw)}")
+        return tuple(_validate(EndState, e, f"{key}[{k}]") for k, e in enumerate(raw))
+    raise _Invalid(key, f"expected 'free', 'rest' or a list of them, got {show(raw)}")
+
+
+def _goal_velocities(t: dict, ends: tuple[str, ...], dim: int,
+                     key: str) -> tuple[tuple[float, ...] | None, ...]:
+    """One entry per waypoint: the given end velocity, or None (none given, or a rest end
+    with a zero one)."""
+    W = len(ends)
     gv: list[tuple[float, ...] | None] = [None] * W
-    if "goal_velocity" in t:
-        g = t["goal_velocity"]
-        key = f"{p}.goal_velocity"
-        if not isinstance(g, (list, tuple)) or not g:
-            raise c.err(key, f"expected [vx, vy, vz] or one entry per waypoint, got {_show(g)}")
-        if all(isinstance(x, (list, tuple)) for x in g):
-            if goal_key == "goal":
-                raise c.err(key, f"expected one vector [vx, vy, vz], got {_show(g)}")
-            if len(g) != W:
-                raise c.err(key, f"expected one vector, or one entry per waypoint ({W}; [] for "
-                                 f"none), got {len(g)} entries")
-            for k, x in enumerate(g):
-                gv[k] = None if len(x) == 0 else c.vector(x, f"{key}[{k}]", dim)
-        else:
-            gv[-1] = c.vector(g, key, dim)
-        for k in range(W):
-            if gv[k] is not None and ends[k] == "rest":
-                if any(x != 0.0 for x in gv[k]):
-                    raise c.err(key, f"waypoint {k} has end_state 'rest' (v = 0) but a non-zero "
-                                     f"goal velocity; drop one of them")
-                gv[k] = None
-    return RobotConfig(vehicle, start, wps, ends, tuple(gv)), _RobotKeys(p, goal_key)
+    if "goal_velocity" not in t:
+        return tuple(gv)
+    g = t["goal_velocity"]
+    if not isinstance(g, (list, tuple)) or not g:
+        raise _Invalid(key, f"expected [vx, vy, vz] or one entry per waypoint, got {show(g)}")
+    if all(isinstance(x, (list, tuple)) for x in g):
+        if "goal" in t:
+            raise _Invalid(key, f"expected one vector [vx, vy, vz], got {show(g)}")
+        if len(g) != W:
+            raise _Invalid(key, f"expected one vector, or one entry per waypoint ({W}; [] for "
+                                f"none), got {len(g)} entries")
+        for k, x in enumerate(g):
+            gv[k] = None if len(x) == 0 else _validate(Position, x, f"{key}[{k}]", dim=dim)
+    else:
+        gv[-1] = _validate(Position, g, key, dim=dim)
+    for k in range(W):
+        if gv[k] is not None and ends[k] == "rest":
+            if any(x != 0.0 for x in gv[k]):
+                raise _Invalid(key, f"waypoint {k} has end_state 'rest' (v = 0) but a non-zero "
+                                    f"goal velocity; drop one of them")
+            gv[k] = None
+    return tuple(gv)
 
 
-def _parse_robots(c: _Ctx, raw: Any, default_end: str, dim: int | None):
+def _parse_robots(raw: Any, default_end: str,
+                  dim: int | None) -> tuple[tuple[RobotConfig, ...], list[_RobotKeys]]:
     if not isinstance(raw, (list, tuple)):
-        raise c.err("robots", f"expected an array of tables [[robots]], got {_show(raw)}")
+        raise _Invalid("robots", f"expected an array of tables [[robots]], got {show(raw)}")
     if len(raw) > MAX_ROBOTS:
-        raise c.err("robots", f"at most {MAX_ROBOTS} robots, got {len(raw)}")
+        raise _Invalid("robots", f"at most {MAX_ROBOTS} robots, got {len(raw)}")
     robots, keys = [], []
     for i, r in enumerate(raw):
-        rc, rk = _parse_robot(c, r, i, dim, default_end)
-        dim = len(rc.start)
-        robots.append(rc)
-        keys.append(rk)
+        robot, robot_keys = _parse_robot(r, i, dim, default_end)
+        dim = len(robot.start)
+        robots.append(robot)
+        keys.append(robot_keys)
     return tuple(robots), keys
 
 
-# Generator keys, in the order they are written out.  Each entry: kind of value and a
-# default (None = computed by the generator from other keys; resolved by _resolve_gen).
-# Types: "count" (1..MAX_ROBOTS), "pos" (> 0), "nonneg" (>= 0), "vec", "box", "dim",
-# "vehicles", "end", ("choice", ...), "tries".
-GENERATOR_KEYS: dict[str, dict[str, tuple[Any, Any]]] = {
-    "antipodal_sphere": {
-        "count": ("count", "required"), "radius": ("pos", 4.0), "dim": ("dim", None),
-        "center": ("vec", None), "placement": (("choice", "even", "random"), "even"),
-        "perturbation": ("nonneg", 0.05), "min_spacing": ("pos", None),
-        "max_tries": ("tries", 1000), "vehicles": ("vehicles", ("firefly",)),
-        "end_state": ("end", None),
-    },
-    "random_box": {
-        "count": ("count", "required"), "dim": ("dim", None), "box": ("box", None),
-        "min_spacing": ("pos", None), "goal_spacing": ("pos", None),
-        "min_travel": ("nonneg", 0.0), "max_tries": ("tries", 1000),
-        "vehicles": ("vehicles", ("firefly",)), "end_state": ("end", None),
-    },
-    "grid_swap": {
-        "rows": ("count", "required"), "cols": ("count", "required"), "spacing": ("pos", 1.5),
-        "dim": ("dim", None), "center": ("vec", None), "jitter": ("nonneg", 0.05),
-        "vehicles": ("vehicles", ("firefly",)), "end_state": ("end", None),
-    },
-    "stacked": {
-        "count": ("count", "required"), "spacing": ("pos", 0.5), "dim": ("dim", None),
-        "base": ("vec", None), "row_spacing": ("pos", 1.0), "row_center": ("vec", None),
-        "jitter": ("nonneg", 0.02), "vehicles": ("vehicles", ("firefly",)),
-        "end_state": ("end", None),
-    },
-}
+# ---------------------------------------------------------------------------------------
+# Scenario
+# ---------------------------------------------------------------------------------------
+
+ScenarioKind = string(one_of(tuple(SCENARIOS)))
 
 
-def _parse_scenario(c: _Ctx, raw: Any, default_end: str) -> ScenarioConfig:
-    t = c.table(raw, "scenario")
+def _parse_scenario(raw: Any, default_end: str) -> ScenarioConfig:
+    t = _table(raw, "scenario")
     if "kind" not in t:
-        raise c.err("scenario.kind", f"missing; choose one of {', '.join(_sc.SCENARIOS)}")
-    kind = c.string(t["kind"], "scenario.kind", tuple(_sc.SCENARIOS))
-    if kind in _sc.PAPER_SCENARIOS:
-        c.keys(t, ("kind",), "scenario")
-        return ScenarioConfig(kind, ())
-    schema = GENERATOR_KEYS[kind]
-    c.keys(t, ("kind", *schema), "scenario")
-    vals: dict[str, Any] = {}
-    # Dimension first: explicit, or from any vector given, else 3.
-    dim = None
-    if "dim" in t:
-        dim = c.integer(t["dim"], "scenario.dim", ge=2, le=3)
-    for k, (typ, _) in schema.items():
-        if k in t and typ in ("vec", "box"):
-            if typ == "vec":
-                v = c.vector(t[k], f"scenario.{k}", dim)
-            else:
-                v = _parse_box(c, t[k], f"scenario.{k}", dim)
-            vals[k] = v
-            dim = len(v) if typ == "vec" else len(v[0])
-    dim = 3 if dim is None else dim
-    for k, (typ, default) in schema.items():
-        key = f"scenario.{k}"
-        if k in vals:
+        raise _Invalid("scenario.kind", f"missing; choose one of {', '.join(SCENARIOS)}")
+    kind = _validate(ScenarioKind, t["kind"], "scenario.kind")
+    if kind in PAPER_SCENARIOS:
+        _check_keys(t, ("kind",), "scenario")
+        return ScenarioConfig(kind)
+    model = GENERATOR_PARAMS[kind]
+    _check_keys(t, ("kind", *model.keys()), "scenario")
+    values = {k: v for k, v in t.items() if k != "kind"}
+    dim = _scenario_dim(model, values)
+    values["dim"] = dim
+    values.setdefault("end_state", default_end)
+    params = _validate(model, values, "scenario", dim=dim,
+                       missing="missing; give a positive integer")
+    if kind == "grid_swap" and params.rows * params.cols > MAX_ROBOTS:
+        raise _Invalid("scenario.rows", f"rows * cols must be <= {MAX_ROBOTS}, got "
+                                        f"{params.rows * params.cols}")
+    return ScenarioConfig(kind, params.resolved())
+
+
+@functools.cache
+def _vector_keys(model: type) -> tuple[tuple[str, Any], ...]:
+    """The model's position and box keys, with their types, in declaration order."""
+    import typing
+
+    hints = typing.get_type_hints(model, include_extras=True)
+    return tuple((k, hints[k]) for k in model.keys()
+                 if hints[k] is Position or hints[k] is Corners)
+
+
+def _scenario_dim(model: type, values: dict[str, Any]) -> int:
+    """N of a generator's table: ``dim`` when given, else the length of its first vector,
+    else 3.  Validates ``dim`` and the vectors (in place), in that order."""
+    dim = _validate(Dimension, values["dim"], "scenario.dim") if "dim" in values else None
+    for k, schema in _vector_keys(model):
+        if k not in values:
             continue
-        if k not in t:
-            if default == "required":
-                raise c.err(key, "missing; give a positive integer")
-            vals[k] = default_end if typ == "end" else (
-                dim if typ == "dim" else default)
-            continue
-        v = t[k]
-        if typ == "count":
-            vals[k] = c.integer(v, key, ge=1, le=MAX_ROBOTS)
-        elif typ == "tries":
-            vals[k] = c.integer(v, key, ge=1, le=1_000_000)
-        elif typ == "pos":
-            vals[k] = c.number(v, key, gt=0, le=MAX_COORD)
-        elif typ == "nonneg":
-            vals[k] = c.number(v, key, ge=0, le=MAX_COORD)
-        elif typ == "dim":
-            vals[k] = dim
-        elif typ == "vehicles":
-            vals[k] = c.name_list(v, key, tuple(VEHICLES))
-        elif typ == "end":
-            vals[k] = c.string(v, key, END_STATES)
-        elif isinstance(typ, tuple) and typ[0] == "choice":
-            vals[k] = c.string(v, key, typ[1:])
-        else:  # pragma: no cover - schema typo
-            raise AssertionError(typ)
-    if kind == "grid_swap" and vals["rows"] * vals["cols"] > MAX_ROBOTS:
-        raise c.err("scenario.rows", f"rows * cols must be <= {MAX_ROBOTS}, got "
-                                     f"{vals['rows'] * vals['cols']}")
-    _resolve_gen(kind, vals)
-    return ScenarioConfig(kind, tuple((k, vals[k]) for k in schema))
+        raw = values[k]
+        if schema is Corners and dim is None:  # the upper corner must match the lower one
+            lower = raw[0] if isinstance(raw, (list, tuple)) and len(raw) == 2 else None
+            if isinstance(lower, (list, tuple)) and len(lower) in (2, 3):
+                dim = len(lower)
+        v = _validate(schema, raw, f"scenario.{k}", dim=dim)
+        values[k] = v
+        dim = len(v) if schema is Position else len(v[0])
+    return 3 if dim is None else dim
 
 
-def _parse_box(c: _Ctx, v: Any, key: str, dim: int | None):
-    if not isinstance(v, (list, tuple)) or len(v) != 2:
-        raise c.err(key, f"expected [[lower corner], [upper corner]], got {_show(v)}")
-    lo = c.vector(v[0], f"{key}[0]", dim)
-    hi = c.vector(v[1], f"{key}[1]", len(lo))
-    for d in range(len(lo)):
-        if hi[d] < lo[d]:
-            raise c.err(key, f"upper corner {_show(hi)} is below lower corner {_show(lo)} "
-                             f"on axis {d}")
-    return (lo, hi)
+# ---------------------------------------------------------------------------------------
+# Sweep
+# ---------------------------------------------------------------------------------------
 
 
-def _resolve_gen(kind: str, vals: dict[str, Any]) -> None:
-    """Fill the dimension-dependent defaults (None) with the generator's own defaults."""
-    dim = vals["dim"]
-    names = vals["vehicles"]
-    rho = 2.0 * max(VEHICLES[v].radius for v in names) + _sc.SAFETY_MARGIN
-    if kind == "antipodal_sphere":
-        if vals["center"] is None:
-            vals["center"] = tuple(float(x) for x in _sc._antipodal_defaults(vals["radius"], dim))
-        if vals["min_spacing"] is None:
-            vals["min_spacing"] = round(rho, 6)
-    elif kind == "random_box":
-        if vals["box"] is None:
-            b = _sc._box_default(dim)
-            vals["box"] = (tuple(map(float, b[0])), tuple(map(float, b[1])))
-        if vals["min_spacing"] is None:
-            vals["min_spacing"] = round(rho, 6)
-        if vals["goal_spacing"] is None:
-            vals["goal_spacing"] = vals["min_spacing"]
-    elif kind == "grid_swap":
-        if vals["center"] is None:
-            vals["center"] = (0.0, 0.0, 2.0) if dim == 3 else (0.0, 0.0)
-    elif kind == "stacked":
-        if vals["base"] is None:
-            vals["base"] = (-3.0, 0.0, 1.2) if dim == 3 else (-3.0, 0.0)
-        if vals["row_center"] is None:
-            vals["row_center"] = (3.0, 0.0, 2.0) if dim == 3 else (3.0, 0.0)
+@dataclass(frozen=True, config=_SECTION)
+class _LogRange:
+    """A weight grid ``{log_min, log_max, num}``: num values, log-spaced, base-10 exponents."""
+
+    log_min: number(ge=-300.0, le=300.0)
+    log_max: number(le=300.0)
+    num: integer(ge=1, le=MAX_SWEEP_POINTS)
+
+    @field_validator("log_max", mode="wrap")
+    @classmethod
+    def _not_below_log_min(cls, v: Any, handler: Any, info: ValidationInfo) -> float:
+        x = handler(v)
+        lo = info.data.get("log_min")
+        if lo is not None and not x >= lo:
+            raise FieldProblem(f"must be >= {lo:g}, got {show(v)}")
+        return x
+
+    @model_validator(mode="after")
+    def _one_point_is_one_value(self) -> _LogRange:
+        if self.num == 1 and self.log_max != self.log_min:
+            raise FieldProblem("num = 1 needs log_min == log_max", key="num")
+        return self
+
+    def values(self) -> tuple[float, ...]:
+        return tuple(float(x) for x in np.logspace(self.log_min, self.log_max, self.num))
 
 
-def _parse_grid(c: _Ctx, raw: Any, key: str, default: float) -> tuple[float, ...]:
+@dataclass(frozen=True, config=_SECTION, kw_only=True)
+class _SeedRange:
+    """Seeds ``{start, num}``: start, start + 1, ..., start + num - 1."""
+
+    start: Seed = 0
+    num: integer(ge=1, le=MAX_SWEEP_POINTS)
+
+    @model_validator(mode="after")
+    def _below_2_63(self) -> _SeedRange:
+        if self.start + self.num - 1 > MAX_SEED:
+            raise FieldProblem("seeds must be < 2**63")
+        return self
+
+
+def _list_of(what: str, table: str, limit_name: str) -> BeforeValidator:
+    def check(v: Any) -> tuple:
+        if not isinstance(v, (list, tuple)) or not v:
+            raise FieldProblem(f"expected a non-empty array of {what} or a table {table}, "
+                               f"got {show(v)}")
+        if len(v) > MAX_SWEEP_POINTS:
+            raise FieldProblem(f"at most {MAX_SWEEP_POINTS} {limit_name}, got {len(v)}")
+        return tuple(v)
+
+    return BeforeValidator(check)
+
+
+def _scenario_names(v: Any) -> tuple:
+    if not isinstance(v, (list, tuple)):
+        raise FieldProblem(f"expected an array of scenario names, got {show(v)}")
+    return tuple(v)
+
+
+_Weights = Annotated[tuple[number(ge=0.0), ...],
+                     _list_of("numbers", "{log_min, log_max, num}", "values")]
+_Seeds = Annotated[tuple[Seed, ...], _list_of("integers", "{start, num}", "seeds")]
+_ScenarioNames = Annotated[tuple[ScenarioKind, ...], BeforeValidator(_scenario_names)]
+
+
+def _parse_weights(raw: Any, key: str, default: float) -> tuple[float, ...]:
     if raw is None:
         return (default,)
     if isinstance(raw, dict):
-        c.table(raw, key)
-        c.keys(raw, ("log_min", "log_max", "num"), key)
-        for k in ("log_min", "log_max", "num"):
-            if k not in raw:
-                raise c.err(f"{key}.{k}", "missing; a log range needs log_min, log_max, num "
-                                          "(base-10 exponents)")
-        lo = c.number(raw["log_min"], f"{key}.log_min", ge=-300, le=300)
-        hi = c.number(raw["log_max"], f"{key}.log_max", ge=lo, le=300)
-        num = c.integer(raw["num"], f"{key}.num", ge=1, le=MAX_SWEEP_POINTS)
-        if num == 1 and hi != lo:
-            raise c.err(f"{key}.num", "num = 1 needs log_min == log_max")
-        return tuple(float(x) for x in np.logspace(lo, hi, num))
-    if not isinstance(raw, (list, tuple)) or not raw:
-        raise c.err(key, f"expected a non-empty array of numbers or a table "
-                         f"{{log_min, log_max, num}}, got {_show(raw)}")
-    if len(raw) > MAX_SWEEP_POINTS:
-        raise c.err(key, f"at most {MAX_SWEEP_POINTS} values, got {len(raw)}")
-    return tuple(c.number(x, f"{key}[{i}]", ge=0) for i, x in enumerate(raw))
+        _table(raw, key)
+        return _validate(_LogRange, raw, key, missing_first=True,
+                         missing="missing; a log range needs log_min, log_max, num (base-10 "
+                                 "exponents)").values()
+    return _validate(_Weights, raw, key)
 
 
-def _parse_sweep(c: _Ctx, raw: Any, planner: PlannerConfig, seed: int) -> SweepConfig:
-    t = c.table(raw, "sweep")
-    c.keys(t, SweepConfig.__dataclass_fields__, "sweep")
-    q_obs = _parse_grid(c, t.get("q_obs"), "sweep.q_obs", planner.q_obs)
-    q_lim = _parse_grid(c, t.get("q_lim"), "sweep.q_lim", planner.q_lim)
-    s = t.get("seeds")
-    if s is None:
-        seeds: tuple[int, ...] = (seed,)
-    elif isinstance(s, dict):
-        c.keys(s, ("start", "num"), "sweep.seeds")
-        if "num" not in s:
-            raise c.err("sweep.seeds.num", "missing; a seed range needs num (and start = 0)")
-        start = c.integer(s.get("start", 0), "sweep.seeds.start", ge=0, le=MAX_SEED)
-        num = c.integer(s["num"], "sweep.seeds.num", ge=1, le=MAX_SWEEP_POINTS)
-        if start + num - 1 > MAX_SEED:
-            raise c.err("sweep.seeds", "seeds must be < 2**63")
-        seeds = tuple(range(start, start + num))
-    elif isinstance(s, (list, tuple)) and s:
-        if len(s) > MAX_SWEEP_POINTS:
-            raise c.err("sweep.seeds", f"at most {MAX_SWEEP_POINTS} seeds, got {len(s)}")
-        seeds = tuple(c.integer(x, f"sweep.seeds[{i}]", ge=0, le=MAX_SEED)
-                      for i, x in enumerate(s))
-    else:
-        raise c.err("sweep.seeds", f"expected a non-empty array of integers or a table "
-                                   f"{{start, num}}, got {_show(s)}")
-    sc = t.get("scenarios", [])
-    if not isinstance(sc, (list, tuple)):
-        raise c.err("sweep.scenarios", f"expected an array of scenario names, got {_show(sc)}")
-    scen = tuple(c.string(x, f"sweep.scenarios[{i}]", tuple(_sc.SCENARIOS))
-                 for i, x in enumerate(sc))
-    return SweepConfig(q_obs=q_obs, q_lim=q_lim, seeds=seeds, scenarios=scen)
+def _parse_seeds(raw: Any, default: int) -> tuple[int, ...]:
+    if raw is None:
+        return (default,)
+    if isinstance(raw, dict):
+        seeds = _validate(_SeedRange, raw, "sweep.seeds", missing_first=True,
+                          missing="missing; a seed range needs num (and start = 0)")
+        return tuple(range(seeds.start, seeds.start + seeds.num))
+    return _validate(_Seeds, raw, "sweep.seeds")
+
+
+def _parse_sweep(raw: Any, planner: PlannerConfig, seed: int) -> SweepConfig:
+    t = _table(raw, "sweep")
+    _check_keys(t, tuple(SweepConfig.__dataclass_fields__), "sweep")
+    return SweepConfig(
+        q_obs=_parse_weights(t.get("q_obs"), "sweep.q_obs", planner.q_obs),
+        q_lim=_parse_weights(t.get("q_lim"), "sweep.q_lim", planner.q_lim),
+        seeds=_parse_seeds(t.get("seeds"), seed),
+        scenarios=_validate(_ScenarioNames, t.get("scenarios", []), "sweep.scenarios"))
 
 
 # ---------------------------------------------------------------------------------------
@@ -773,73 +739,77 @@ def parse_config(data: Any, source: str = "<string>") -> Config:
     Returns: a frozen :class:`Config`.
     Raises: ConfigError, one line ``<source>: <key>: <problem>``, never anything else.
     """
-    c = _Ctx(str(source))
+    source = str(source)
+    shown = source if source.isprintable() else show(source)
     try:
-        return _parse(c, data)
-    except ConfigError:
-        raise
+        return _parse(data, shown)
+    except _Invalid as e:
+        key = e.key if e.key.isprintable() else show(e.key)
+        message = " ".join(e.message.split())
+        raise ConfigError(f"{shown}: {key}: {message}" if key else f"{shown}: {message}") \
+            from None
     except (RecursionError, MemoryError) as e:  # absurdly nested or huge input
-        raise c.err("", f"input too large or too deeply nested ({type(e).__name__})") from None
+        raise ConfigError(f"{shown}: input too large or too deeply nested "
+                          f"({type(e).__name__})") from None
 
 
-def _parse(c: _Ctx, data: Any) -> Config:
-    t = c.table(data, "")
-    c.keys(t, _TOP_KEYS, "")
-    default_name = Path(c.source).stem if c.source != "<string>" else "config"
-    name = c.string(t.get("name", default_name or "config"), "name")
-    if not name.strip() or any(ch in name for ch in "/\\\n\r\t\0"):
-        raise c.err("name", f"must be a non-empty name without slashes or control "
-                            f"characters, got {_show(name)}")
-    description = c.string(t.get("description", ""), "description")
-    seed = c.integer(t.get("seed", 0), "seed", ge=0, le=MAX_SEED)
-    planner = _parse_planner(c, t.get("planner", {}))
-    limits = _parse_limits(c, t.get("limits", {}))
-    sim = _parse_sim(c, t.get("sim", {}))
-    faults = _parse_faults(c, t.get("faults", {}))
-    scenario = None
-    dim = None
-    if "scenario" in t:
-        scenario = _parse_scenario(c, t["scenario"], planner.end_state)
-        dim = scenario.dim
-    robots, robot_keys = _parse_robots(c, t.get("robots", []), planner.end_state, dim)
+def _section(t: dict, key: str, model: type) -> Any:
+    return _validate(model, _table(t.get(key, {}), key), key)
+
+
+def _parse(data: Any, source: str) -> Config:
+    t = _table(data, "")
+    _check_keys(t, _TOP_KEYS, "")
+    default_name = Path(source).stem if source != "<string>" else "config"
+    name = _validate(Name, t.get("name", default_name or "config"), "name")
+    description = _validate(string(), t.get("description", ""), "description")
+    seed = _validate(Seed, t.get("seed", 0), "seed")
+    planner = _section(t, "planner", PlannerConfig)
+    limits = _section(t, "limits", LimitsConfig)
+    sim = _section(t, "sim", SimConfig)
+    faults = _section(t, "faults", FaultsConfig)
+    scenario = _parse_scenario(t["scenario"], planner.end_state) if "scenario" in t else None
+    dim = scenario.dim if scenario is not None else None
+    robots, robot_keys = _parse_robots(t.get("robots", []), planner.end_state, dim)
     if scenario is None and not robots:
-        raise c.err("robots", "the fleet is empty; give [[robots]] entries or a [scenario] "
-                              "table")
-    if dim is None:
-        dim = len(robots[0].start)
-    if sim.backend == "mjx" and dim != 3:
-        raise c.err("sim.backend", "'mjx' simulates quadrotors and needs 3-D positions; use "
-                                   "'ideal' for a 2-D config")
-    sweep = _parse_sweep(c, t.get("sweep", {}), planner, seed)
-    cfg = Config(name=name, description=description, seed=seed, planner=planner,
-                 limits=limits, sim=sim, robots=robots, scenario=scenario, sweep=sweep,
-                 faults=faults, source=c.source)
-    # Build the fleet now (cheap NumPy) so geometric errors surface before any run.
+        raise _Invalid("robots", "the fleet is empty; give [[robots]] entries or a [scenario] "
+                                 "table")
+    if sim.backend == "mjx" and (dim or len(robots[0].start)) != 3:
+        raise _Invalid("sim.backend", "'mjx' simulates quadrotors and needs 3-D positions; "
+                                      "use 'ideal' for a 2-D config")
+    sweep = _parse_sweep(t.get("sweep", {}), planner, seed)
+    config = Config(name=name, description=description, seed=seed, planner=planner,
+                    limits=limits, sim=sim, robots=robots, scenario=scenario, sweep=sweep,
+                    faults=faults, source=source)
+    _check_fleet(config, robot_keys)
+    return config
+
+
+def _check_fleet(config: Config, robot_keys: list[_RobotKeys]) -> None:
+    """Build the fleet now (cheap NumPy) so that geometric errors surface before any run,
+    named by the config key they come from."""
     try:
-        sc = _build(cfg, validate=False)
+        fleet = _assemble(config, validate=False)
     except ScenarioError as e:
         key = f"scenario.{e.key}" if e.key else "scenario"
         msg = str(e)
         if e.key and msg.startswith(f"{e.key}: "):
             msg = msg[len(e.key) + 2:]
-        raise c.err(key, msg) from None
-    n_gen = sc.num_robots - len(robots)
+        raise _Invalid(key, msg) from None
+    n_gen = fleet.num_robots - len(config.robots)
 
     def label(i: int) -> str:
         return f"robots[{i - n_gen}]" if i >= n_gen else f"generated robot {i}"
 
-    probs = _sc.scenario_problems(sc, max_problems=1, label=label)
-    if probs:
-        p = probs[0]
-        i = p.robot
-        if i >= n_gen:
-            rk = robot_keys[i - n_gen]
-            key = rk.start() if p.waypoint is None else rk.goal(
-                min(p.waypoint, len(robots[i - n_gen].waypoints) - 1))
-        else:
-            key = "scenario"
-        raise c.err(key, p.message)
-    return cfg
+    problems = scenarios.scenario_problems(fleet, max_problems=1, label=label)
+    if problems:
+        p = problems[0]
+        key = "scenario"
+        if p.robot >= n_gen:
+            keys = robot_keys[p.robot - n_gen]
+            W = len(config.robots[p.robot - n_gen].waypoints)
+            key = keys.start() if p.waypoint is None else keys.goal(min(p.waypoint, W - 1))
+        raise _Invalid(key, p.message)
 
 
 def load_config(path: str | Path) -> Config:
@@ -858,46 +828,43 @@ def load_config(path: str | Path) -> Config:
     return parse_config(data, source=src)
 
 
-def _to_plain(v: Any) -> Any:
-    if isinstance(v, tuple):
-        return [_to_plain(x) for x in v]
-    return v
+def _dump(model: Any, **kw: Any) -> dict[str, Any]:
+    """A section model as TOML-ready plain data (tuples become lists)."""
+    return _adapter(type(model)).dump_python(model, mode="json", **kw)
+
+
+def _robot_to_dict(r: RobotConfig) -> dict[str, Any]:
+    """A robot in the shortest form that reads back equal: goal for one waypoint, one
+    end_state when all agree, one goal_velocity when only the last waypoint has one."""
+    row: dict[str, Any] = {"vehicle": r.vehicle, "start": list(r.start)}
+    if len(r.waypoints) == 1:
+        row["goal"] = list(r.waypoints[0])
+    else:
+        row["waypoints"] = [list(w) for w in r.waypoints]
+    row["end_state"] = r.end_state[0] if len(set(r.end_state)) == 1 else list(r.end_state)
+    if any(v is not None for v in r.goal_velocity):
+        if all(v is None for v in r.goal_velocity[:-1]):
+            row["goal_velocity"] = list(r.goal_velocity[-1])
+        else:
+            row["goal_velocity"] = [[] if v is None else list(v) for v in r.goal_velocity]
+    return row
 
 
 def config_to_dict(config: Config) -> dict[str, Any]:
     """The fully resolved config as a TOML-ready dict (every default written out;
     limits only where overridden: their default is per vehicle)."""
     d: dict[str, Any] = {"name": config.name, "description": config.description,
-                         "seed": config.seed}
-    d["planner"] = {k: getattr(config.planner, k) for k in PlannerConfig.__dataclass_fields__}
-    d["limits"] = {k: getattr(config.limits, k) for k in LimitsConfig.__dataclass_fields__
-                   if getattr(config.limits, k) is not None}
-    d["sim"] = {k: getattr(config.sim, k) for k in SimConfig.__dataclass_fields__}
+                         "seed": config.seed, "planner": _dump(config.planner),
+                         "limits": _dump(config.limits, exclude_none=True),
+                         "sim": _dump(config.sim)}
     if config.scenario is not None:
-        d["scenario"] = {"kind": config.scenario.kind,
-                         **{k: _to_plain(v) for k, v in config.scenario.params}}
+        d["scenario"] = {"kind": config.scenario.kind}
+        if config.scenario.params is not None:
+            d["scenario"].update(_dump(config.scenario.params))
     if config.robots:
-        rows = []
-        for r in config.robots:
-            row: dict[str, Any] = {"vehicle": r.vehicle, "start": list(r.start)}
-            W = len(r.waypoints)
-            if W == 1:
-                row["goal"] = list(r.waypoints[0])
-            else:
-                row["waypoints"] = [list(w) for w in r.waypoints]
-            row["end_state"] = r.end_state[0] if len(set(r.end_state)) == 1 else \
-                list(r.end_state)
-            if any(v is not None for v in r.goal_velocity):
-                if all(v is None for v in r.goal_velocity[:-1]):
-                    row["goal_velocity"] = list(r.goal_velocity[-1])
-                else:
-                    row["goal_velocity"] = [[] if v is None else list(v)
-                                            for v in r.goal_velocity]
-            rows.append(row)
-        d["robots"] = rows
-    d["sweep"] = {"q_obs": list(config.sweep.q_obs), "q_lim": list(config.sweep.q_lim),
-                  "seeds": list(config.sweep.seeds), "scenarios": list(config.sweep.scenarios)}
-    d["faults"] = {k: getattr(config.faults, k) for k in FAULT_KEYS}
+        d["robots"] = [_robot_to_dict(r) for r in config.robots]
+    d["sweep"] = _dump(config.sweep)
+    d["faults"] = _dump(config.faults)
     return d
 
 
@@ -910,8 +877,8 @@ def config_to_toml(config: Config) -> str:
                         f"j_max={VEHICLES[v].j_max:g}" for v in used)
         lines.append(f"# [limits] not given are per vehicle: {per}")
     d = config_to_dict(config)
-    top = [f"{k} = {_toml_value(v)}" for k, v in d.items() if not isinstance(v, (dict, list))]
-    lines += top
+    lines += [f"{k} = {_toml_value(v)}" for k, v in d.items()
+              if not isinstance(v, (dict, list))]
     for k, v in d.items():
         if isinstance(v, dict):
             lines += ["", f"[{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
@@ -935,23 +902,19 @@ def _toml_value(v: Any) -> str:
 def _scenario_vehicles(config: Config) -> set[str]:
     if config.scenario is None:
         return set()
-    if config.scenario.kind in _sc.PAPER_SCENARIOS:
+    if config.scenario.kind in PAPER_SCENARIOS:
         return {"firefly", "neo11"}
     return set(config.scenario.get("vehicles", ()))
 
 
-def _build(config: Config, validate: bool) -> Scenario:
+def _assemble(config: Config, validate: bool) -> Scenario:
+    """The fleet: generated robots, then [[robots]], with the [limits] overrides."""
     parts: list[Scenario] = []
     if config.scenario is not None:
-        kind = config.scenario.kind
-        if kind in _sc.PAPER_SCENARIOS:
-            parts.append(_sc.PAPER_SCENARIOS[kind](seed=config.seed))
-        else:
-            params = config.scenario.as_dict()
-            if kind == "random_box":
-                params.pop("dim")  # random_box takes N from its box
-            # Validated below, as a whole fleet together with [[robots]].
-            parts.append(_sc.GENERATORS[kind](seed=config.seed, validate=False, **params))
+        if config.scenario.params is None:
+            parts.append(PAPER_SCENARIOS[config.scenario.kind](seed=config.seed))
+        else:  # validated below, as a whole fleet together with [[robots]]
+            parts.append(config.scenario.params.build(seed=config.seed, validate=False))
     starts, wps, rests, gvs, names = [], [], [], [], []
     for p in parts:
         for i in range(p.num_robots):
@@ -968,9 +931,9 @@ def _build(config: Config, validate: bool) -> Scenario:
         rests.append([e == "rest" for e in r.end_state])
         gvs.append(list(r.goal_velocity))
     lim = config.limits
-    return _sc.make_scenario(config.name, names, np.array(starts), wps, rests, gvs,
-                             v_max=lim.v_max, a_max=lim.a_max, j_max=lim.j_max,
-                             validate=validate)
+    return scenarios.make_scenario(config.name, names, np.array(starts), wps, rests, gvs,
+                                   v_max=lim.v_max, a_max=lim.a_max, j_max=lim.j_max,
+                                   validate=validate)
 
 
 def build_scenario(config: Config) -> Scenario:
@@ -979,9 +942,9 @@ def build_scenario(config: Config) -> Scenario:
 
     Returns: a validated :class:`jaxplan.scenarios.Scenario`.
     """
-    sc = _build(config, validate=True)
+    fleet = _assemble(config, validate=True)
     fr = config.faults.frozen_robot
-    if fr >= sc.num_robots:
+    if fr >= fleet.num_robots:
         raise ConfigError(f"{config.source}: faults.frozen_robot: robot {fr} does not exist "
-                          f"(the fleet has {sc.num_robots} robots, numbered from 0)")
-    return sc
+                          f"(the fleet has {fleet.num_robots} robots, numbered from 0)")
+    return fleet

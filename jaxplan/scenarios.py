@@ -37,14 +37,33 @@ start and goal, so that seeds differ and exact symmetries are broken.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import inspect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
+from pydantic import ConfigDict
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
+from jaxplan.fields import (
+    END_STATES,
+    MAX_ROBOTS,
+    Corners,
+    Count,
+    Dimension,
+    EndState,
+    NonNegativeLength,
+    Position,
+    PositiveLength,
+    Tries,
+    VehicleNames,
+    one_of,
+    string,
+)
 from jaxplan.vehicles import VEHICLES
 
 __all__ = [
@@ -55,6 +74,13 @@ __all__ = [
     "SCENARIOS",
     "PAPER_SCENARIOS",
     "GENERATORS",
+    "GENERATOR_PARAMS",
+    "GeneratorParams",
+    "AnyGeneratorParams",
+    "AntipodalSphereParams",
+    "RandomBoxParams",
+    "GridSwapParams",
+    "StackedParams",
     "END_STATES",
     "MAX_ROBOTS",
     "SAFETY_MARGIN",
@@ -73,8 +99,6 @@ __all__ = [
     "build",
 ]
 
-END_STATES = ("free", "rest")
-MAX_ROBOTS = 1024          # largest fleet a generator builds
 SAFETY_MARGIN = 0.2        # m, added to r_i + r_j by generators that choose spacings
 PAPER_JITTER = 0.02        # m, seeded jitter of every paper start and goal
 
@@ -239,9 +263,29 @@ def make_scenario(
     start = np.asarray(start, dtype=np.float64)
     if start.ndim != 2 or start.shape[0] != M or start.shape[1] not in (2, 3):
         raise ScenarioError(f"start: expected shape ({M}, 2 or 3), got {start.shape}")
-    N = start.shape[1]
+    wp, lengths = _waypoint_array(waypoints, M, start.shape[1])
+    rest_arr = _rest_array(rest, lengths)
+    gv, has = _goal_velocity_arrays(goal_velocity, rest_arr, wp.shape[2])
+    limits = {key: _limit_array(val, key, vehicles)
+              for key, val in (("v_max", v_max), ("a_max", a_max), ("j_max", j_max))}
+    sc = Scenario(
+        name=str(name),
+        vehicles=vehicles,
+        start=_readonly(start),
+        waypoints=_readonly(wp),
+        rest=_readonly(rest_arr),
+        goal_velocity=_readonly(gv),
+        has_goal_velocity=_readonly(has),
+        radius=_readonly(np.array([VEHICLES[v].radius for v in vehicles], dtype=np.float64)),
+        **{k: _readonly(v) for k, v in limits.items()},
+    )
+    if validate:
+        validate_scenario(sc)
+    return sc
 
-    # Waypoints, per robot lists of (N,) vectors.
+
+def _waypoint_array(waypoints, M: int, N: int) -> tuple[np.ndarray, list[int]]:
+    """(M, W, N) goals, shorter lists padded with their last goal; and each robot's W_i."""
     if isinstance(waypoints, np.ndarray) and waypoints.ndim == 2:
         waypoints = waypoints[:, None, :]
     if len(waypoints) != M:
@@ -255,10 +299,12 @@ def make_scenario(
             raise ScenarioError(f"waypoints: robot {i}: expected shape (W, {N}), got {w.shape}")
         wp_lists.append(list(w))
     lengths = [len(w) for w in wp_lists]
-    W = max(lengths)
-    wp = np.array(_pad(wp_lists), dtype=np.float64).reshape(M, W, N)
+    return np.array(_pad(wp_lists), dtype=np.float64).reshape(M, max(lengths), N), lengths
 
-    # Rest flags.
+
+def _rest_array(rest, lengths: list[int]) -> np.ndarray:
+    """(M, W) rest flags from a bool, per-robot flags or per-robot per-waypoint flags."""
+    M, W = len(lengths), max(lengths)
     if isinstance(rest, (bool, np.bool_, int, np.integer)):
         rest_lists = [[bool(rest)] * n for n in lengths]
     else:
@@ -272,9 +318,13 @@ def make_scenario(
             rest_lists.append(list(r))
         if len(rest_lists) != M:
             raise ScenarioError(f"rest: expected {M} robots, got {len(rest_lists)}")
-    rest_arr = np.array(_pad(rest_lists), dtype=bool).reshape(M, W)
+    return np.array(_pad(rest_lists), dtype=bool).reshape(M, W)
 
-    # Goal velocities.
+
+def _goal_velocity_arrays(goal_velocity, rest: np.ndarray,
+                          N: int) -> tuple[np.ndarray, np.ndarray]:
+    """(M, W, N) end velocities and (M, W) has-one flags; none at a rest end."""
+    M, W = rest.shape
     gv = np.zeros((M, W, N))
     has = np.zeros((M, W), dtype=bool)
     if goal_velocity is not None:
@@ -296,33 +346,19 @@ def make_scenario(
                     raise ScenarioError(f"goal_velocity: robot {i}: expected ({N},), got {v.shape}")
                 gv[i, w] = v
                 has[i, w] = True
-    if np.any(has & rest_arr & np.any(gv != 0.0, axis=-1)):
+    if np.any(has & rest & np.any(gv != 0.0, axis=-1)):
         raise ScenarioError(
             "goal_velocity: a rest end state has v = 0; drop the velocity or the rest")
-    has &= ~rest_arr
+    has &= ~rest
     gv[~has] = 0.0
+    return gv, has
 
-    radius = np.array([VEHICLES[v].radius for v in vehicles], dtype=np.float64)
-    lim = {}
-    for key, val in (("v_max", v_max), ("a_max", a_max), ("j_max", j_max)):
-        if val is None:
-            lim[key] = np.array([getattr(VEHICLES[v], key) for v in vehicles], dtype=np.float64)
-        else:
-            lim[key] = np.broadcast_to(np.asarray(val, np.float64), (M,))
-    sc = Scenario(
-        name=str(name),
-        vehicles=vehicles,
-        start=_readonly(start),
-        waypoints=_readonly(wp),
-        rest=_readonly(rest_arr),
-        goal_velocity=_readonly(gv),
-        has_goal_velocity=_readonly(has),
-        radius=_readonly(radius),
-        **{k: _readonly(v) for k, v in lim.items()},
-    )
-    if validate:
-        validate_scenario(sc)
-    return sc
+
+def _limit_array(value, key: str, vehicles: tuple[str, ...]) -> np.ndarray:
+    """(M,) limit ``key``: the override (scalar or (M,)) or each vehicle's own."""
+    if value is None:
+        return np.array([getattr(VEHICLES[v], key) for v in vehicles], dtype=np.float64)
+    return np.broadcast_to(np.asarray(value, np.float64), (len(vehicles),))
 
 
 def scenario_problems(sc: Scenario, max_problems: int = 10,
@@ -501,24 +537,108 @@ def _place(rng, count, sample, spacing, max_tries, what, ok=None, chunk=64):
 
 
 # -------------------------------------------------------------------------- generators
+#
+# Each generator's [scenario] keys are declared once, by the parameter model above it:
+# the config (jaxplan/config.py) validates a [scenario] table with that model, and the
+# generator's own defaults are the model's.
+
+_PARAMS_CONFIG = ConfigDict(extra="forbid")
+PLACEMENTS = ("even", "random")
 
 
-def _antipodal_defaults(radius: float, dim: int) -> np.ndarray:
+class GeneratorParams:
+    """What the generators' parameter models share.
+
+    A model's fields are its generator's ``[scenario]`` keys, in the order the resolved
+    config writes them.  A default of None is resolved from the other keys by
+    :meth:`resolved` (``dim`` and ``end_state`` by the config: the N of the config's
+    vectors, ``planner.end_state``).
+    """
+
+    kind: ClassVar[str]
+    skip_arguments: ClassVar[tuple[str, ...]] = ()  # keys the generator does not take
+
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        """The ``[scenario]`` keys (besides ``kind``), in declaration order."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    def as_dict(self) -> dict[str, Any]:
+        """The keys and their values, in declaration order."""
+        return {k: getattr(self, k) for k in self.keys()}
+
+    def resolved(self) -> GeneratorParams:
+        """A copy with every None default filled in (needs ``dim`` set)."""
+        return self
+
+    def build(self, seed: int, validate: bool = True) -> Scenario:
+        """The generator's scenario for these parameters."""
+        generator = GENERATORS[self.kind]
+        taken = inspect.signature(generator).parameters
+        args = {k: v for k, v in self.as_dict().items()
+                if k in taken and k not in self.skip_arguments}
+        return generator(seed=seed, validate=validate, **args)
+
+
+def default_spacing(vehicles: Sequence[str]) -> float:
+    """max(r_i + r_j) + SAFETY_MARGIN over ``vehicles``, m: the generators' default
+    minimum spacing of starts and goals."""
+    return _max_rho(vehicles) + SAFETY_MARGIN
+
+
+def _resolved_spacing(vehicles: Sequence[str]) -> float:
+    """:func:`default_spacing` as the resolved config writes it (6 decimals)."""
+    return round(default_spacing(vehicles), 6)
+
+
+def _floats(a) -> tuple:
+    """A NumPy vector or (2, N) array as (nested) tuples of floats."""
+    a = np.asarray(a, dtype=np.float64)
+    return tuple(float(x) for x in a) if a.ndim == 1 else tuple(_floats(r) for r in a)
+
+
+def _antipodal_center(radius: float, dim: int) -> np.ndarray:
     return np.zeros(2) if dim == 2 else np.array([0.0, 0.0, radius + 1.0])
+
+
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class AntipodalSphereParams(GeneratorParams):
+    """``kind = "antipodal_sphere"`` (:func:`antipodal_sphere`)."""
+
+    kind: ClassVar[str] = "antipodal_sphere"
+    count: Count
+    radius: PositiveLength = 4.0
+    dim: Dimension = None
+    center: Position = None
+    placement: string(one_of(PLACEMENTS)) = "even"
+    perturbation: NonNegativeLength = 0.05
+    min_spacing: PositiveLength = None
+    max_tries: Tries = 1000
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+    def resolved(self) -> AntipodalSphereParams:
+        return dataclasses.replace(
+            self,
+            center=self.center or _floats(_antipodal_center(self.radius, self.dim)),
+            min_spacing=self.min_spacing or _resolved_spacing(self.vehicles))
+
+
+_P = AntipodalSphereParams
 
 
 def antipodal_sphere(
     count: int,
-    radius: float = 4.0,
-    vehicles: Sequence[str] = ("firefly",),
+    radius: float = _P.radius,
+    vehicles: Sequence[str] = _P.vehicles,
     seed: int = 0,
     *,
     center=None,
     dim: int = 3,
-    placement: str = "even",
-    perturbation: float = 0.05,
+    placement: str = _P.placement,
+    perturbation: float = _P.perturbation,
     min_spacing: float | None = None,
-    max_tries: int = 1000,
+    max_tries: int = _P.max_tries,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:
@@ -548,7 +668,7 @@ def antipodal_sphere(
     rest = _check_end(end_state)
     perturbation = _check_pos(perturbation, "perturbation", strict=False)
     names = _cycle(vehicles, count)
-    c = _antipodal_defaults(radius, dim) if center is None else _check_vec(center, dim, "center")
+    c = _antipodal_center(radius, dim) if center is None else _check_vec(center, dim, "center")
     rng = np.random.default_rng(seed)
     if placement == "even":
         if dim == 3:
@@ -562,7 +682,7 @@ def antipodal_sphere(
             ang = 2.0 * math.pi * np.arange(count) / count + rng.uniform(0.0, 2.0 * math.pi)
             unit = np.stack([np.cos(ang), np.sin(ang)], axis=1)
     elif placement == "random":
-        sp = _max_rho(names) + SAFETY_MARGIN if min_spacing is None else _check_pos(
+        sp = default_spacing(names) if min_spacing is None else _check_pos(
             min_spacing, "min_spacing")
 
         def sample(n):
@@ -578,21 +698,46 @@ def antipodal_sphere(
     return make_scenario("antipodal_sphere", names, start, goal, rest, validate=validate)
 
 
-def _box_default(dim: int) -> np.ndarray:
+def _default_box(dim: int) -> np.ndarray:
     return np.array([[-3.0, -3.0, 1.0], [3.0, 3.0, 3.0]]) if dim == 3 else np.array(
         [[-3.0, -3.0], [3.0, 3.0]])
+
+
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class RandomBoxParams(GeneratorParams):
+    """``kind = "random_box"`` (:func:`random_box`; N follows the box)."""
+
+    kind: ClassVar[str] = "random_box"
+    skip_arguments: ClassVar[tuple[str, ...]] = ("dim",)
+    count: Count
+    dim: Dimension = None
+    box: Corners = None
+    min_spacing: PositiveLength = None
+    goal_spacing: PositiveLength = None
+    min_travel: NonNegativeLength = 0.0
+    max_tries: Tries = 1000
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+    def resolved(self) -> RandomBoxParams:
+        spacing = self.min_spacing or _resolved_spacing(self.vehicles)
+        return dataclasses.replace(self, box=self.box or _floats(_default_box(self.dim)),
+                                   min_spacing=spacing, goal_spacing=self.goal_spacing or spacing)
+
+
+_P = RandomBoxParams
 
 
 def random_box(
     count: int,
     box=None,
     min_spacing: float | None = None,
-    vehicles: Sequence[str] = ("firefly",),
+    vehicles: Sequence[str] = _P.vehicles,
     seed: int = 0,
     *,
     goal_spacing: float | None = None,
-    min_travel: float = 0.0,
-    max_tries: int = 1000,
+    min_travel: float = _P.min_travel,
+    max_tries: int = _P.max_tries,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:
@@ -614,14 +759,14 @@ def random_box(
     seed = _check_seed(seed)
     rest = _check_end(end_state)
     names = _cycle(vehicles, count)
-    b = _box_default(3) if box is None else np.asarray(box, dtype=np.float64)
+    b = _default_box(3) if box is None else np.asarray(box, dtype=np.float64)
     if b.ndim != 2 or b.shape[0] != 2 or b.shape[1] not in (2, 3) or not np.all(np.isfinite(b)):
         raise ScenarioError(f"box: expected [[lower corner], [upper corner]] of 2 or 3 numbers "
                             f"each, got {box!r}", key="box")
     if np.any(b[1] < b[0]):
         raise ScenarioError("box: the upper corner must not be below the lower corner", key="box")
     dim = b.shape[1]
-    sp = _max_rho(names) + SAFETY_MARGIN if min_spacing is None else _check_pos(
+    sp = default_spacing(names) if min_spacing is None else _check_pos(
         min_spacing, "min_spacing")
     gsp = sp if goal_spacing is None else _check_pos(goal_spacing, "goal_spacing")
     travel = _check_pos(min_travel, "min_travel", strict=False)
@@ -642,16 +787,41 @@ def random_box(
     return make_scenario("random_box", names, start, goal, rest, validate=validate)
 
 
+def _grid_center(dim: int) -> np.ndarray:
+    return np.array([0.0, 0.0, 2.0]) if dim == 3 else np.zeros(2)
+
+
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class GridSwapParams(GeneratorParams):
+    """``kind = "grid_swap"`` (:func:`grid_swap`)."""
+
+    kind: ClassVar[str] = "grid_swap"
+    rows: Count
+    cols: Count
+    spacing: PositiveLength = 1.5
+    dim: Dimension = None
+    center: Position = None
+    jitter: NonNegativeLength = 0.05
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+    def resolved(self) -> GridSwapParams:
+        return dataclasses.replace(self, center=self.center or _floats(_grid_center(self.dim)))
+
+
+_P = GridSwapParams
+
+
 def grid_swap(
     rows: int,
     cols: int,
-    spacing: float = 1.5,
-    vehicles: Sequence[str] = ("firefly",),
+    spacing: float = _P.spacing,
+    vehicles: Sequence[str] = _P.vehicles,
     seed: int = 0,
     *,
     center=None,
     dim: int = 3,
-    jitter: float = 0.05,
+    jitter: float = _P.jitter,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:
@@ -677,8 +847,7 @@ def grid_swap(
     jitter = _check_pos(jitter, "jitter", strict=False)
     count = rows * cols
     names = _cycle(vehicles, count)
-    c = (np.array([0.0, 0.0, 2.0]) if dim == 3 else np.zeros(2)) if center is None else \
-        _check_vec(center, dim, "center")
+    c = _grid_center(dim) if center is None else _check_vec(center, dim, "center")
     rr, cc = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     off = np.zeros((count, dim))
     off[:, 0] = (cc.ravel() - (cols - 1) / 2.0) * spacing
@@ -689,17 +858,48 @@ def grid_swap(
     return make_scenario("grid_swap", names, start, goal, rest, validate=validate)
 
 
+def _stack_base(dim: int) -> np.ndarray:
+    return np.array([-3.0, 0.0, 1.2]) if dim == 3 else np.array([-3.0, 0.0])
+
+
+def _row_center(dim: int) -> np.ndarray:
+    return np.array([3.0, 0.0, 2.0]) if dim == 3 else np.array([3.0, 0.0])
+
+
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class StackedParams(GeneratorParams):
+    """``kind = "stacked"`` (:func:`stacked`)."""
+
+    kind: ClassVar[str] = "stacked"
+    count: Count
+    spacing: PositiveLength = 0.5
+    dim: Dimension = None
+    base: Position = None
+    row_spacing: PositiveLength = 1.0
+    row_center: Position = None
+    jitter: NonNegativeLength = 0.02
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+    def resolved(self) -> StackedParams:
+        return dataclasses.replace(self, base=self.base or _floats(_stack_base(self.dim)),
+                                   row_center=self.row_center or _floats(_row_center(self.dim)))
+
+
+_P = StackedParams
+
+
 def stacked(
     count: int,
-    spacing: float = 0.5,
-    vehicles: Sequence[str] = ("firefly",),
+    spacing: float = _P.spacing,
+    vehicles: Sequence[str] = _P.vehicles,
     seed: int = 0,
     *,
     base=None,
-    row_spacing: float = 1.0,
+    row_spacing: float = _P.row_spacing,
     row_center=None,
     dim: int = 3,
-    jitter: float = 0.02,
+    jitter: float = _P.jitter,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:
@@ -722,10 +922,8 @@ def stacked(
         raise ScenarioError(f"jitter: must be below half the stack spacing ({spacing / 2:.3g} m)"
                             f", got {jitter}", key="jitter")
     names = _cycle(vehicles, count)
-    b = (np.array([-3.0, 0.0, 1.2]) if dim == 3 else np.array([-3.0, 0.0])) if base is None \
-        else _check_vec(base, dim, "base")
-    rc = (np.array([3.0, 0.0, 2.0]) if dim == 3 else np.array([3.0, 0.0])) if row_center is None \
-        else _check_vec(row_center, dim, "row_center")
+    b = _stack_base(dim) if base is None else _check_vec(base, dim, "base")
+    rc = _row_center(dim) if row_center is None else _check_vec(row_center, dim, "row_center")
     k = np.arange(count, dtype=np.float64)
     start = np.tile(b, (count, 1))
     start[:, -1] += k * spacing
@@ -852,6 +1050,11 @@ GENERATORS: dict[str, Callable[..., Scenario]] = {
     "grid_swap": grid_swap,
     "stacked": stacked,
 }
+
+GENERATOR_PARAMS: dict[str, type[GeneratorParams]] = {
+    p.kind: p for p in (AntipodalSphereParams, RandomBoxParams, GridSwapParams, StackedParams)
+}
+AnyGeneratorParams = AntipodalSphereParams | RandomBoxParams | GridSwapParams | StackedParams
 
 _MIXED = ("firefly", "neo11")
 
