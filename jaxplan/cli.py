@@ -119,7 +119,8 @@ def _use_compile_cache(off: bool) -> str | None:
 def _stamp_unstamped(d: Path) -> None:
     """Give every entry of cache directory ``d`` that has no access-time file one (its
     modification time), so that JAX's size-bounded cache, which reads one per entry when
-    it evicts, can manage entries written without a bound (jaxplan before it set one).
+    it evicts, can manage entries written while no bound was set (e.g. under
+    ``JAX_COMPILATION_CACHE_MAX_SIZE=-1``).
 
     JAX stores an entry as ``<key>-cache`` and its last access as ``<key>-atime`` (8 bytes,
     nanoseconds, little-endian): :data:`CACHE_ENTRY_SUFFIX`, :data:`CACHE_ATIME_SUFFIX`.

@@ -1,5 +1,5 @@
 """TOML configs -> frozen, validated pydantic dataclasses, every default resolved
-(docs/DESIGN.md, "Config").
+(docs/DESIGN.md, "Config (TOML)").
 
     name = "six_neos"                 # default: the file's stem ("config" for strings)
     description = ""                  # free text

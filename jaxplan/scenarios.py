@@ -1,4 +1,11 @@
-"""Scenarios: the paper's four simulations and the benchmark generators.
+"""Scenarios: the :class:`Scenario` fleet task, the paper's four simulations, the four
+benchmark generators with their parameter models, and the registry (their config keys:
+docs/DESIGN.md, "Config (TOML)").
+
+A generator's ``[scenario]`` keys are declared once, by the parameter model next to it
+(:class:`AntipodalSphereParams`, :class:`RandomBoxParams`, :class:`GridSwapParams`,
+:class:`StackedParams`, field types from jaxplan/fields.py): jaxplan/config.py validates a
+config's ``[scenario]`` table with it, and the generator's defaults are the model's.
 
 Everything here is host-side NumPy (float64), deterministic for a seed: every random
 choice draws from ``numpy.random.default_rng(seed)``.  Units are SI (m, m/s, m/s^2,
@@ -75,6 +82,8 @@ __all__ = [
     "PAPER_SCENARIOS",
     "GENERATORS",
     "GENERATOR_PARAMS",
+    "PLACEMENTS",
+    "default_spacing",
     "GeneratorParams",
     "AnyGeneratorParams",
     "AntipodalSphereParams",
@@ -624,21 +633,18 @@ class AntipodalSphereParams(GeneratorParams):
             min_spacing=self.min_spacing or _resolved_spacing(self.vehicles))
 
 
-_P = AntipodalSphereParams
-
-
 def antipodal_sphere(
     count: int,
-    radius: float = _P.radius,
-    vehicles: Sequence[str] = _P.vehicles,
+    radius: float = AntipodalSphereParams.radius,
+    vehicles: Sequence[str] = AntipodalSphereParams.vehicles,
     seed: int = 0,
     *,
     center=None,
     dim: int = 3,
-    placement: str = _P.placement,
-    perturbation: float = _P.perturbation,
+    placement: str = AntipodalSphereParams.placement,
+    perturbation: float = AntipodalSphereParams.perturbation,
     min_spacing: float | None = None,
-    max_tries: int = _P.max_tries,
+    max_tries: int = AntipodalSphereParams.max_tries,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:
@@ -725,19 +731,16 @@ class RandomBoxParams(GeneratorParams):
                                    min_spacing=spacing, goal_spacing=self.goal_spacing or spacing)
 
 
-_P = RandomBoxParams
-
-
 def random_box(
     count: int,
     box=None,
     min_spacing: float | None = None,
-    vehicles: Sequence[str] = _P.vehicles,
+    vehicles: Sequence[str] = RandomBoxParams.vehicles,
     seed: int = 0,
     *,
     goal_spacing: float | None = None,
-    min_travel: float = _P.min_travel,
-    max_tries: int = _P.max_tries,
+    min_travel: float = RandomBoxParams.min_travel,
+    max_tries: int = RandomBoxParams.max_tries,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:
@@ -809,19 +812,16 @@ class GridSwapParams(GeneratorParams):
         return dataclasses.replace(self, center=self.center or _floats(_grid_center(self.dim)))
 
 
-_P = GridSwapParams
-
-
 def grid_swap(
     rows: int,
     cols: int,
-    spacing: float = _P.spacing,
-    vehicles: Sequence[str] = _P.vehicles,
+    spacing: float = GridSwapParams.spacing,
+    vehicles: Sequence[str] = GridSwapParams.vehicles,
     seed: int = 0,
     *,
     center=None,
     dim: int = 3,
-    jitter: float = _P.jitter,
+    jitter: float = GridSwapParams.jitter,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:
@@ -886,20 +886,17 @@ class StackedParams(GeneratorParams):
                                    row_center=self.row_center or _floats(_row_center(self.dim)))
 
 
-_P = StackedParams
-
-
 def stacked(
     count: int,
-    spacing: float = _P.spacing,
-    vehicles: Sequence[str] = _P.vehicles,
+    spacing: float = StackedParams.spacing,
+    vehicles: Sequence[str] = StackedParams.vehicles,
     seed: int = 0,
     *,
     base=None,
-    row_spacing: float = _P.row_spacing,
+    row_spacing: float = StackedParams.row_spacing,
     row_center=None,
     dim: int = 3,
-    jitter: float = _P.jitter,
+    jitter: float = StackedParams.jitter,
     end_state: str = "free",
     validate: bool = True,
 ) -> Scenario:

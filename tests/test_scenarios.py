@@ -267,3 +267,29 @@ def test_seeds_are_independent_streams():
     a = [S.paper_six_neos(s).start for s in range(6)]
     for x, y in itertools.combinations(a, 2):
         assert not np.allclose(x, y)
+
+
+def test_each_generator_has_a_parameter_model_with_its_defaults():
+    """The [scenario] keys are declared once, by the generator's parameter model: every
+    generator argument (besides seed and validate) is one of its keys, and a default the
+    model gives is the generator's."""
+    import dataclasses
+    import inspect
+
+    assert set(S.GENERATOR_PARAMS) == set(S.GENERATORS)
+    for kind, model in S.GENERATOR_PARAMS.items():
+        assert model.kind == kind
+        args = inspect.signature(S.GENERATORS[kind]).parameters
+        assert set(args) - {"seed", "validate"} <= set(model.keys())
+        for f in dataclasses.fields(model):
+            if f.name in args and f.default not in (None, dataclasses.MISSING):
+                assert args[f.name].default == f.default, (kind, f.name)
+
+
+def test_a_parameter_model_builds_what_its_generator_builds():
+    p = S.GridSwapParams(rows=2, cols=3, dim=2, end_state="rest").resolved()
+    assert p.center == (0.0, 0.0)
+    assert same(p.build(seed=4), S.grid_swap(2, 3, seed=4, dim=2, end_state="rest"))
+    b = S.RandomBoxParams(count=4, dim=3, end_state="free").resolved()
+    assert b.goal_spacing == b.min_spacing == round(S.default_spacing(["firefly"]), 6)
+    assert same(b.build(seed=1), S.random_box(4, seed=1, min_spacing=b.min_spacing))
