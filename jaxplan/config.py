@@ -55,6 +55,7 @@ from pydantic import (
     AfterValidator,
     BeforeValidator,
     ConfigDict,
+    Strict,
     TypeAdapter,
     ValidationError,
     ValidationInfo,
@@ -249,7 +250,7 @@ class FaultsConfig:
     """[faults] (jaxplan/faults.py): all off by default; ``enabled`` switches the faulty
     channel on (a different compiled program)."""
 
-    enabled: bool = False
+    enabled: Annotated[bool, Strict()] = False
     message_loss: Probability = 0.0  # per (observer, sender, period), in [0, 1)
     latency_s: ShortDelay = 0.0  # s, rounded to whole replan periods
     noise_sigma_m: number(ge=0.0) = 0.0  # m per axis on every received position
@@ -709,6 +710,7 @@ def _parse_seeds(raw: Any, default: int) -> tuple[int, ...]:
     if raw is None:
         return (default,)
     if isinstance(raw, dict):
+        _table(raw, "sweep.seeds")
         seeds = _validate(_SeedRange, raw, "sweep.seeds", missing_first=True,
                           missing="missing; a seed range needs num (and start = 0)")
         return tuple(range(seeds.start, seeds.start + seeds.num))

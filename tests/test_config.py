@@ -169,6 +169,13 @@ ERRORS = [
     (two(sweep={"seeds": [0, -3]}), "sweep.seeds[1]", "must be >= 0"),
     (two(sweep={"seeds": 5}), "sweep.seeds", "expected a non-empty array"),
     (two(sweep={"scenarios": ["antipodal"]}), "sweep.scenarios[0]", "unknown value"),
+    (two(sweep={"seeds": {1: 2}}), "sweep.seeds", "expected string keys, got 1"),
+    (two(sweep={"seeds": {"start": 2**63 - 2, "num": 3}}), "sweep.seeds", "must be < 2**63"),
+    (two(faults={"enabled": 1}), "faults.enabled", "expected true or false, got 1"),
+    (two(faults={"latency_s": 11}), "faults.latency_s", "must be <= 10 s, got 11.0"),
+    (two(planner={"q_obs": 2**2000}), "planner.q_obs", "number out of range"),
+    ({"scenario": {"kind": "random_box", "count": 3, "box": [[0, 0], [1, 1, 1]]}},
+     "scenario.box[1]", "expected 2 coordinates"),
 ]
 
 
