@@ -565,7 +565,6 @@ class GeneratorParams:
     """
 
     kind: ClassVar[str]
-    skip_arguments: ClassVar[tuple[str, ...]] = ()  # keys the generator does not take
 
     @classmethod
     def keys(cls) -> tuple[str, ...]:
@@ -581,11 +580,11 @@ class GeneratorParams:
         return self
 
     def build(self, seed: int, validate: bool = True) -> Scenario:
-        """The generator's scenario for these parameters."""
+        """The generator's scenario for these parameters (a key the generator does not
+        take, random_box's dim, is left out: its box gives N)."""
         generator = GENERATORS[self.kind]
         taken = inspect.signature(generator).parameters
-        args = {k: v for k, v in self.as_dict().items()
-                if k in taken and k not in self.skip_arguments}
+        args = {k: v for k, v in self.as_dict().items() if k in taken}
         return generator(seed=seed, validate=validate, **args)
 
 
@@ -714,7 +713,6 @@ class RandomBoxParams(GeneratorParams):
     """``kind = "random_box"`` (:func:`random_box`; N follows the box)."""
 
     kind: ClassVar[str] = "random_box"
-    skip_arguments: ClassVar[tuple[str, ...]] = ("dim",)
     count: Count
     dim: Dimension = None
     box: Corners = None
