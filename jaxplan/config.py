@@ -46,6 +46,7 @@ import difflib
 import functools
 import re
 import tomllib
+import typing
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -600,8 +601,6 @@ def _parse_scenario(raw: Any, default_end: str) -> ScenarioConfig:
 @functools.cache
 def _vector_keys(model: type) -> tuple[tuple[str, Any], ...]:
     """The model's position and box keys, with their types, in declaration order."""
-    import typing
-
     hints = typing.get_type_hints(model, include_extras=True)
     return tuple((k, hints[k]) for k in model.keys()
                  if hints[k] is Position or hints[k] is Corners)
