@@ -64,14 +64,26 @@ goal = [2.0, 2.0, 1.5]
 """
 
 
-def pytest_collection_modifyitems(config, items):
-    """xdist groups (`make test` runs ``--dist loadgroup``): a module's tests run in one
-    worker, in order, sharing its module fixtures and compiled programs, as with
-    ``--dist loadfile``; modules that set ``XDIST_GROUP`` share a worker with the
-    other modules of that group (the tiny scenario's users: its programs compile once)."""
-    for item in items:
-        group = getattr(item.module, "XDIST_GROUP", None) or item.module.__name__
-        item.add_marker(pytest.mark.xdist_group(group))
+# Test modules that share one pytest-xdist worker under `make test` (--dist loadfile):
+# the tiny scenario's users, so that its programs compile once (in-process, by the first
+# test that asks for `tiny_run`; the crash test's `jaxplan run` children then load them
+# from the session's compilation cache).  Every other module is its own unit, as usual.
+SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
+                 ("test_cli", "test_crash", "test_examples", "test_planner")}
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """--dist loadfile, with the modules of SHARED_WORKER in one unit (in file order)."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedWorkerScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = super()._split_scope(nodeid)
+            return SHARED_WORKER.get(module, module)
+
+    return SharedWorkerScheduling(config, log)
 
 
 @pytest.fixture(scope="session")
@@ -92,3 +104,4 @@ def tiny_run(tiny_config):
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)
+

@@ -12,9 +12,6 @@ from jaxplan.cli import compile_cache_dir, main
 from tests._proc import ROOT
 from tests.conftest import TINY_TOML
 
-# one xdist worker with the other users of the tiny scenario (tests/conftest.py)
-XDIST_GROUP = "tiny"
-
 
 def test_run_writes_every_contract_file(tmp_path, capsys, tiny_run, monkeypatch):
     cfg = tmp_path / "tiny.toml"

@@ -27,9 +27,6 @@ import pytest
 from tests._proc import child_env, kill_when
 from tests.conftest import TINY_TOML
 
-# run in one xdist worker with the other users of the tiny scenario (tests/conftest.py)
-XDIST_GROUP = "tiny"
-
 CONTRACT = ("config.toml", "trajectories.npz", "metrics.json")
 FIGURES = ("trajectories_3d.png", "speed_acc.png", "separation.png", "animation.gif")
 TEMP = re.compile(r"^\..+\.tmp(\.mp4)?$")  # the writers' hidden temporary names
@@ -45,8 +42,8 @@ def crash_env(tmp_path_factory):
     cfg = d / "tiny.toml"
     cfg.write_text(TINY_TOML.replace("duration_s = 12.0", "duration_s = 1.0"))
     # the runs share the test session's persistent compilation cache: the tiny
-    # scenario's programs (the same at any duration) are there once a test of this
-    # file's xdist group ran `tiny_run` in-process (else the first child compiles them)
+    # scenario's programs (the same at any duration) are there once `tiny_run` ran in
+    # this worker (tests/conftest.py SHARED_WORKER; else the first child compiles them)
     env = child_env(os.environ.get("JAX_COMPILATION_CACHE_DIR") or d / "jax_cache")
     return d, cfg, env
 

@@ -12,9 +12,6 @@ import scipy.optimize
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 
-# one xdist worker with the other users of the tiny scenario (tests/conftest.py)
-XDIST_GROUP = "tiny"
-
 
 def load(name):
     """examples/NAME.py as a module (examples/ is not a package)."""

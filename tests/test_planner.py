@@ -23,9 +23,6 @@ from jaxplan.planner import (
 from jaxplan.rollout import initial_state
 from jaxplan.trajectory import Trajectory
 
-# one xdist worker with the other users of the tiny scenario (tests/conftest.py)
-XDIST_GROUP = "tiny"
-
 
 def _setup(cfg):
     sc = build_scenario(cfg)
