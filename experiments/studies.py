@@ -294,11 +294,9 @@ def write_results(out: Path, path: Path = RESULTS) -> Path:
                      f"<!-- /table:{study} -->\n\n<!-- notes:{study} -->\n{notes}\n"
                      f"<!-- /notes:{study} -->\n")
     text = "\n".join(parts)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-    return path
+    from jaxplan.fileio import atomic_write_text
+
+    return atomic_write_text(path, text)
 
 
 def main(argv=None) -> int:

@@ -1,15 +1,16 @@
-"""Figures and animations of a run directory and of a sweep directory (DESIGN.md, "A run
-directory", "A sweep directory").
+"""Figures and animations of a run directory and of a sweep directory (docs/DESIGN.md,
+"A run directory", "A sweep directory"): drawing only.
 
     plot_run(run_dir, *, animation=True, mp4=False, max_frames=150) -> list[Path]
     plot_sweep(sweep_dir) -> list[Path]
-    best_setting(sweep_csv_path) -> dict
 
-Everything is drawn on :class:`matplotlib.figure.Figure` objects with the Agg canvas;
-pyplot is never imported, the global backend is never switched, and the style is applied
-inside ``matplotlib.rc_context`` only, so importing or calling this module leaves no
-global matplotlib state behind.  Files are written atomically (a temporary file in the
-same folder, then ``os.replace``).
+The data come from :func:`jaxplan.results.load_run` (a run directory, validated) and
+:mod:`jaxplan.sweep_csv` (sweep.csv, its grid and best setting); the animation's frames
+are encoded by :mod:`jaxplan.media`; every file is written atomically
+(:mod:`jaxplan.fileio`).  Everything is drawn on :class:`matplotlib.figure.Figure`
+objects with the Agg canvas; pyplot is never imported, the global backend is never
+switched, and the style is applied inside ``matplotlib.rc_context`` only, so importing
+or calling this module leaves no global matplotlib state behind.
 
 Run figures (``run_dir/figures/``), sizes in pixels:
 
@@ -26,8 +27,8 @@ Run figures (``run_dir/figures/``), sizes in pixels:
 
 Sweep figures (``sweep_dir/figures/``): ``success_rate.png``, ``min_separation.png``,
 ``makespan.png``; one panel per scenario group ("all scenarios", then each scenario when
-there are several), 460 x 400 pixels per panel; the best setting (:func:`best_setting`)
-is outlined on every panel.
+there are several), 460 x 400 pixels per panel; the best setting
+(:func:`jaxplan.sweep_csv.best_setting`) is outlined on every panel.
 
 Bad input (a missing file or key, a wrong shape, non-finite numbers, an unreadable CSV
 cell) raises ``ValueError("<file>: <key>: <problem>")`` before anything is drawn.
@@ -35,16 +36,8 @@ cell) raises ``ValueError("<file>: <key>: <problem>")`` before anything is drawn
 
 from __future__ import annotations
 
-import contextlib
-import csv
-import json
 import math
-import os
-import shutil
-import tempfile
-import tomllib
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -56,7 +49,12 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
-__all__ = ["plot_run", "plot_sweep", "best_setting", "RunData", "load_run"]
+from jaxplan import media
+from jaxplan.fileio import atomic_write
+from jaxplan.results import RunData, load_run
+from jaxplan.sweep_csv import Grid, best_index, best_summary, grid, read_sweep_rows
+
+__all__ = ["plot_run", "plot_sweep", "robot_colors"]
 
 DPI = 120
 ANIM_DPI = 100
@@ -99,21 +97,7 @@ def _new_figure(size, dpi=DPI, layout="constrained"):
 
 def _save_png(fig, path: Path) -> Path:
     """Save fig as PNG at exactly figsize x dpi pixels, atomically."""
-    return _atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=fig.dpi))
-
-
-def _atomic(path: Path, write) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=fig.dpi))
 
 
 def robot_colors(m: int) -> list:
@@ -128,209 +112,6 @@ def robot_colors(m: int) -> list:
     return [cmap(x) for x in np.linspace(0.05, 0.95, m)]
 
 
-def _err(path, key, problem):
-    return ValueError(f"{path}: {key}: {problem}")
-
-
-# --------------------------------------------------------------------------- run input
-
-
-@dataclass(frozen=True)
-class RunData:
-    """A run directory's data, validated (shapes: M robots, K samples, N = 2 or 3 dims).
-
-    t (K,) s; pos (M, K, N) m; vel (M, K, N) m/s; acc (M, K, N) m/s^2; radius (M,) m;
-    goal (M, N) m; vehicle: M names; pieces: (seg_robot (S,), seg_t0 (S,), seg_t1 (S,),
-    seg_coeffs (S, N, D+1)) or None; waypoints (M, W, N) m or None; metrics: the parsed
-    metrics.json or {}; limits: {"v_max": (M,), "a_max": (M,)} m/s, m/s^2, NaN where
-    unknown; name: the run's name (config ``name`` or the folder name).
-    """
-
-    run_dir: Path
-    t: np.ndarray
-    pos: np.ndarray
-    vel: np.ndarray
-    acc: np.ndarray
-    radius: np.ndarray
-    goal: np.ndarray
-    vehicle: tuple
-    pieces: tuple | None
-    waypoints: np.ndarray | None
-    metrics: dict
-    limits: dict
-    name: str
-
-    @property
-    def num_robots(self) -> int:
-        return self.pos.shape[0]
-
-    @property
-    def ndim(self) -> int:
-        return self.pos.shape[2]
-
-
-_REQUIRED = ("t", "pos", "vel", "acc", "radius", "goal", "vehicle")
-_PIECE_KEYS = ("seg_robot", "seg_t0", "seg_t1", "seg_coeffs")
-
-
-def _finite(path, key, a):
-    if a.size and not np.all(np.isfinite(a)):
-        bad = np.argwhere(~np.isfinite(a))[0]
-        idx = tuple(int(b) for b in bad)
-        raise _err(path, key, f"non-finite value {a[idx]} at index {idx}")
-
-
-def _float_array(path, key, raw):
-    try:
-        return np.asarray(raw, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise _err(path, key, f"not numeric (dtype {raw.dtype})") from None
-
-
-def load_run(run_dir) -> RunData:
-    """Read and validate run_dir/trajectories.npz, metrics.json (optional) and
-    config.toml (optional).  Raises ValueError("<file>: <key>: <problem>")."""
-    run_dir = Path(run_dir)
-    npz = run_dir / "trajectories.npz"
-    if not npz.is_file():
-        raise ValueError(f"{npz}: file not found")
-    try:
-        z = np.load(npz, allow_pickle=False)
-    except Exception as e:  # noqa: BLE001  (zip errors, bad magic, ...)
-        raise ValueError(f"{npz}: cannot be read as .npz: {e}") from None
-    with z:
-        keys = set(z.files)
-        raw = {}
-        for key in sorted(keys):
-            try:
-                raw[key] = z[key]
-            except ValueError:
-                raise _err(npz, key, "holds Python objects (needs pickle)") from None
-    for key in _REQUIRED:
-        if key not in raw:
-            raise _err(npz, key, f"missing (the file has {', '.join(sorted(keys)) or 'no keys'})")
-
-    t = _float_array(npz, "t", raw["t"])
-    if t.ndim != 1 or t.size < 1:
-        raise _err(npz, "t", f"must be (K,) with K >= 1; got shape {t.shape}")
-    _finite(npz, "t", t)
-    if np.any(np.diff(t) < 0):
-        raise _err(npz, "t", "must be non-decreasing")
-    pos = _float_array(npz, "pos", raw["pos"])
-    if pos.ndim != 3 or pos.shape[1] != t.size or pos.shape[2] not in (2, 3) or pos.shape[0] < 1:
-        raise _err(npz, "pos", f"must be (M, K={t.size}, N) with N = 2 or 3; got {pos.shape}")
-    m, _, n = pos.shape
-    _finite(npz, "pos", pos)
-    arrays = {}
-    for key in ("vel", "acc"):
-        a = _float_array(npz, key, raw[key])
-        if a.shape != pos.shape:
-            raise _err(npz, key, f"must have the shape of pos {pos.shape}; got {a.shape}")
-        _finite(npz, key, a)
-        arrays[key] = a
-    radius = _float_array(npz, "radius", raw["radius"])
-    if radius.shape != (m,):
-        raise _err(npz, "radius", f"must be (M,) = ({m},); got {radius.shape}")
-    _finite(npz, "radius", radius)
-    if np.any(radius <= 0):
-        raise _err(npz, "radius", "must be > 0")
-    goal = _float_array(npz, "goal", raw["goal"])
-    if goal.shape != (m, n):
-        raise _err(npz, "goal", f"must be (M, N) = ({m}, {n}); got {goal.shape}")
-    _finite(npz, "goal", goal)
-    veh = raw["vehicle"]
-    if veh.shape != (m,) or veh.dtype.kind not in "US":
-        raise _err(npz, "vehicle", f"must be (M,) = ({m},) strings; got {veh.dtype} {veh.shape}")
-    vehicle = tuple(v.decode() if isinstance(v, bytes) else str(v) for v in veh.tolist())
-
-    pieces = None
-    present = [k for k in _PIECE_KEYS if k in raw]
-    if present:
-        missing = [k for k in _PIECE_KEYS if k not in raw]
-        if missing:
-            raise _err(npz, missing[0], f"missing while {', '.join(present)} present")
-        r = raw["seg_robot"]
-        t0 = _float_array(npz, "seg_t0", raw["seg_t0"])
-        t1 = _float_array(npz, "seg_t1", raw["seg_t1"])
-        co = _float_array(npz, "seg_coeffs", raw["seg_coeffs"])
-        s = r.shape[0] if r.ndim == 1 else -1
-        if r.ndim != 1 or r.dtype.kind not in "iu":
-            raise _err(npz, "seg_robot", f"must be (S,) integers; got {r.dtype} {r.shape}")
-        if r.size and (r.min() < 0 or r.max() >= m):
-            raise _err(npz, "seg_robot", f"robot indices must lie in [0, {m})")
-        for key, a in (("seg_t0", t0), ("seg_t1", t1)):
-            if a.shape != (s,):
-                raise _err(npz, key, f"must be (S,) = ({s},); got {a.shape}")
-            _finite(npz, key, a)
-        if co.ndim != 3 or co.shape[:2] != (s, n) or co.shape[2] < 1:
-            raise _err(npz, "seg_coeffs", f"must be (S, N, D+1) = ({s}, {n}, D+1); got {co.shape}")
-        _finite(npz, "seg_coeffs", co)
-        pieces = (r.astype(np.int64), t0, t1, co)
-
-    waypoints = None
-    if "waypoints" in raw:
-        w = _float_array(npz, "waypoints", raw["waypoints"])
-        if w.ndim != 3 or w.shape[0] != m or w.shape[2] != n:
-            raise _err(npz, "waypoints", f"must be (M, W, N) = ({m}, W, {n}); got {w.shape}")
-        waypoints = w  # NaN rows allowed: padding for robots with fewer waypoints
-
-    metrics = {}
-    mpath = run_dir / "metrics.json"
-    if mpath.is_file():
-        try:
-            metrics = json.loads(mpath.read_text())
-        except (OSError, ValueError) as e:
-            raise ValueError(f"{mpath}: not valid JSON: {e}") from None
-        if not isinstance(metrics, dict):
-            raise ValueError(f"{mpath}: must hold a JSON object")
-
-    config = {}
-    cpath = run_dir / "config.toml"
-    if cpath.is_file():
-        try:
-            config = tomllib.loads(cpath.read_text())
-        except (OSError, ValueError) as e:
-            raise ValueError(f"{cpath}: not valid TOML: {e}") from None
-
-    limits = _resolve_limits(vehicle, config, metrics, cpath, mpath)
-    name = config.get("name") if isinstance(config.get("name"), str) else run_dir.name
-    return RunData(
-        run_dir=run_dir, t=t, pos=pos, vel=arrays["vel"], acc=arrays["acc"], radius=radius,
-        goal=goal, vehicle=vehicle, pieces=pieces, waypoints=waypoints, metrics=metrics,
-        limits=limits, name=name,
-    )
-
-
-def _limit_value(table, key, path, where):
-    if not isinstance(table, dict) or table.get(key) is None:
-        return None
-    v = table[key]
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
-        raise _err(path, f"{where}{key}", f"must be a positive number; got {v!r}")
-    return float(v)
-
-
-def _resolve_limits(vehicle, config, metrics, cpath, mpath):
-    """Per-robot v_max, a_max: config [limits], else metrics.json (limits.* or top level),
-    else the vehicle table; NaN where none is known (an unknown vehicle name)."""
-    from jaxplan.vehicles import VEHICLES
-
-    out = {}
-    for key in ("v_max", "a_max"):
-        v = _limit_value(config.get("limits"), key, cpath, "limits.")
-        if v is None:
-            v = _limit_value(metrics.get("limits"), key, mpath, "limits.")
-        if v is None:
-            v = _limit_value(metrics, key, mpath, "")
-        if v is not None:
-            out[key] = np.full(len(vehicle), v)
-        else:
-            out[key] = np.array(
-                [getattr(VEHICLES[name], key) if name in VEHICLES else np.nan for name in vehicle]
-            )
-    return out
-
-
 # --------------------------------------------------------------------------- run plots
 
 
@@ -338,7 +119,7 @@ def plot_run(run_dir, *, animation=True, mp4=False, max_frames=150) -> list[Path
     """Draw a run directory's figures into run_dir/figures/ (module docstring).
 
     Args:
-        run_dir: a run directory (DESIGN.md): trajectories.npz (required), metrics.json
+        run_dir: a run directory (docs/DESIGN.md): trajectories.npz (required), metrics.json
             and config.toml (optional: title numbers and limits).
         animation: also write the animation (the slowest part: ~2-6 s).
         mp4: write animation.mp4 instead of animation.gif when ffmpeg is on PATH (a
@@ -485,7 +266,7 @@ def _pair_minima(data: RunData):
         try:
             d, tm = pairwise_min_separation(*data.pieces, num_robots=m)
         except ValueError as e:
-            raise _err(data.run_dir / "trajectories.npz", "seg_*", str(e)) from None
+            raise ValueError(f"{data.run_dir / 'trajectories.npz'}: seg_*: {e}") from None
         return d, tm, True
     d = np.full((m, m), np.inf)
     tm = np.full((m, m), np.nan)
@@ -667,7 +448,7 @@ def _animate(data: RunData, out: Path, *, mp4: bool, max_frames: int) -> Path:
         raise ValueError(f"max_frames must be >= 2; got {max_frames}")
     use_mp4 = False
     if mp4:
-        if shutil.which("ffmpeg"):
+        if media.ffmpeg_available():
             use_mp4 = True
         else:
             warnings.warn("ffmpeg not found on PATH: writing animation.gif instead of .mp4",
@@ -736,197 +517,11 @@ def _animate(data: RunData, out: Path, *, mp4: bool, max_frames: int) -> Path:
 
         size = canvas.get_width_height()
         if use_mp4:
-            return _write_mp4(frames(), size, out / "animation.mp4")
-        return _write_gif(frames(), size, out / "animation.gif")
-
-
-def _write_gif(frames, size, path: Path) -> Path:
-    from PIL import Image
-
-    rgb = [Image.fromarray(np.ascontiguousarray(fr[..., :3])) for fr in frames]
-    # one shared palette (the first frame shows every colour: paths, goals, bodies)
-    first = rgb[0].quantize(colors=255, method=Image.Quantize.MEDIANCUT,
-                            dither=Image.Dither.NONE)
-    pal = [first] + [fr.quantize(palette=first, dither=Image.Dither.NONE) for fr in rgb[1:]]
-    return _atomic(path, lambda tmp: pal[0].save(
-        tmp, format="GIF", save_all=True, append_images=pal[1:], duration=FRAME_MS, loop=0))
-
-
-def _write_mp4(frames, size, path: Path) -> Path:
-    """Pipe raw RGBA frames to ffmpeg (H.264, yuv420p; the frame size is even)."""
-    import subprocess
-
-    w, h = size
-    tmp = path.with_name(f".{path.stem}.tmp.mp4")  # ffmpeg picks the container by suffix
-    cmd = ["ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgba",
-           "-s", f"{w}x{h}", "-r", f"{1000.0 / FRAME_MS:g}", "-i", "-",
-           "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p",
-           "-movflags", "+faststart", str(tmp)]
-    try:
-        with subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
-            try:
-                for fr in frames:
-                    proc.stdin.write(np.ascontiguousarray(fr).tobytes())
-            except BrokenPipeError:
-                pass
-            proc.stdin.close()
-            err = proc.stderr.read().decode(errors="replace").strip()
-            rc = proc.wait()
-        if rc != 0:
-            raise RuntimeError(f"ffmpeg failed writing {path} (exit {rc}): {err[-500:]}")
-        os.replace(tmp, path)
-    finally:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-    return path
+            return media.write_mp4(frames(), size, out / "animation.mp4", FRAME_MS)
+        return media.write_gif(frames(), out / "animation.gif", FRAME_MS)
 
 
 # -------------------------------------------------------------------------------- sweeps
-
-_SWEEP_COLUMNS = ("q_obs", "q_lim", "scenario", "seed", "success", "min_separation_ratio",
-                  "makespan_s", "collisions")
-_TRUE = {"1", "1.0", "true", "yes", "y", "t"}
-_FALSE = {"0", "0.0", "false", "no", "n", "f"}
-
-
-@dataclass(frozen=True)
-class SweepRows:
-    """sweep.csv as columns (R rows): q_obs, q_lim (R,) floats; scenario (R,) str;
-    seed (R,) str; success (R,) bool; min_separation_ratio, makespan_s (R,) floats
-    (NaN allowed: a failed run); collisions (R,) floats (NaN allowed)."""
-
-    q_obs: np.ndarray
-    q_lim: np.ndarray
-    scenario: np.ndarray
-    seed: np.ndarray
-    success: np.ndarray
-    min_separation_ratio: np.ndarray
-    makespan_s: np.ndarray
-    collisions: np.ndarray
-
-
-def _read_sweep(path) -> SweepRows:
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: file not found")
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        missing = [c for c in _SWEEP_COLUMNS if c not in header]
-        if missing:
-            raise _err(path, missing[0], f"column missing (header: {', '.join(header) or 'empty'})")
-        reader.fieldnames = header
-        rows = list(reader)
-    if not rows:
-        raise ValueError(f"{path}: no rows")
-    cols = {c: [] for c in _SWEEP_COLUMNS}
-    for ln, row in enumerate(rows, start=2):
-        for c in _SWEEP_COLUMNS:
-            s = (row.get(c) or "").strip()
-            if c in ("scenario", "seed"):
-                cols[c].append(s)
-            elif c == "success":
-                if s.lower() in _TRUE:
-                    cols[c].append(True)
-                elif s.lower() in _FALSE:
-                    cols[c].append(False)
-                else:
-                    raise _err(path, c, f"line {ln}: {s!r} is not 0/1/true/false")
-            else:
-                try:
-                    v = float(s) if s else math.nan
-                except ValueError:
-                    raise _err(path, c, f"line {ln}: {s!r} is not a number") from None
-                if c in ("q_obs", "q_lim") and not math.isfinite(v):
-                    raise _err(path, c, f"line {ln}: {s!r} must be a finite number")
-                cols[c].append(v)
-    return SweepRows(**{c: np.asarray(v) for c, v in cols.items()})
-
-
-@dataclass(frozen=True)
-class _Grid:
-    q_obs: np.ndarray  # (A,)
-    q_lim: np.ndarray  # (B,)
-    success: np.ndarray  # (A, B) rate in [0, 1]; NaN where no run
-    min_sep: np.ndarray  # (A, B) worst over runs
-    makespan: np.ndarray  # (A, B) mean over successful runs; NaN if none
-    collisions: np.ndarray  # (A, B) mean per run
-    runs: np.ndarray  # (A, B) int
-
-
-def _grid(rows: SweepRows, mask) -> _Grid:
-    qo = np.unique(rows.q_obs)
-    ql = np.unique(rows.q_lim)
-    shape = (qo.size, ql.size)
-    g = {k: np.full(shape, np.nan) for k in ("success", "min_sep", "makespan", "collisions")}
-    runs = np.zeros(shape, dtype=int)
-    for a, vo in enumerate(qo):
-        for b, vl in enumerate(ql):
-            sel = mask & (rows.q_obs == vo) & (rows.q_lim == vl)
-            runs[a, b] = int(sel.sum())
-            if not runs[a, b]:
-                continue
-            g["success"][a, b] = rows.success[sel].mean()
-            ms = rows.min_separation_ratio[sel]
-            ms = ms[~np.isnan(ms)]
-            if ms.size:
-                g["min_sep"][a, b] = ms.min()
-            ok = sel & rows.success & np.isfinite(rows.makespan_s)
-            if ok.any():
-                g["makespan"][a, b] = rows.makespan_s[ok].mean()
-            co = rows.collisions[sel]
-            co = co[~np.isnan(co)]
-            if co.size:
-                g["collisions"][a, b] = co.mean()
-    return _Grid(qo, ql, runs=runs, **g)
-
-
-def _best_index(g: _Grid):
-    """(a, b) of the best cell: highest success, then fewest collisions, then largest
-    min separation ratio, then shortest makespan; ties -> smallest q_obs, then q_lim."""
-    best, key_best = None, None
-    for a in range(g.q_obs.size):
-        for b in range(g.q_lim.size):
-            if g.runs[a, b] == 0:
-                continue
-
-            def val(x, worst):
-                return worst if np.isnan(x) else float(x)
-
-            key = (
-                -val(g.success[a, b], 0.0),
-                val(g.collisions[a, b], math.inf),
-                -val(g.min_sep[a, b], -math.inf),
-                val(g.makespan[a, b], math.inf),
-            )
-            if key_best is None or key < key_best:
-                best, key_best = (a, b), key
-    return best
-
-
-def best_setting(sweep_csv_path) -> dict:
-    """The best (q_obs, q_lim) of a sweep, over all scenarios and seeds.
-
-    Order: highest success rate, then fewest collisions (mean per run), then the
-    largest minimum separation ratio (worst over the runs), then the shortest makespan
-    (mean over successful runs); remaining ties go to the smallest q_obs, then q_lim.
-
-    Returns: dict(q_obs, q_lim, success_rate, collisions (mean per run),
-    min_separation_ratio, makespan_s (NaN if no run succeeded), runs).
-    """
-    rows = _read_sweep(sweep_csv_path)
-    g = _grid(rows, np.ones(rows.q_obs.size, dtype=bool))
-    a, b = _best_index(g)
-    return dict(
-        q_obs=float(g.q_obs[a]),
-        q_lim=float(g.q_lim[b]),
-        success_rate=float(g.success[a, b]),
-        collisions=float(g.collisions[a, b]),
-        min_separation_ratio=float(g.min_sep[a, b]),
-        makespan_s=float(g.makespan[a, b]),
-        runs=int(g.runs[a, b]),
-    )
-
 
 def _log_edges(v):
     """Cell edges of sorted positive values on a log axis (geometric midpoints)."""
@@ -969,14 +564,14 @@ def plot_sweep(sweep_dir) -> list[Path]:
     seeds), min_separation.png (worst over seeds, contour and hatching at ratio 1) and
     makespan.png (mean over successful runs; grey where none succeeded): one panel for
     all scenarios together, plus one per scenario when there are several.  Axes are
-    log10 when every weight is positive.  The best setting (:func:`best_setting`) is
-    outlined in black on every panel.
+    log10 when every weight is positive.  The best setting
+    (:func:`jaxplan.sweep_csv.best_setting`) is outlined in black on every panel.
 
     Returns: the three paths.
     """
     sweep_dir = Path(sweep_dir)
     path = sweep_dir / "sweep.csv"
-    rows = _read_sweep(path)
+    rows = read_sweep_rows(path)
     everything = np.ones(rows.q_obs.size, dtype=bool)
     groups = [("all scenarios", everything)]
     scen = list(dict.fromkeys(rows.scenario.tolist()))
@@ -984,9 +579,9 @@ def plot_sweep(sweep_dir) -> list[Path]:
         groups += [(s, rows.scenario == s) for s in scen]
     else:
         groups = [(scen[0] or "all scenarios", everything)]
-    grids = [(name, _grid(rows, mask)) for name, mask in groups]
-    g_all = grids[0][1] if len(scen) <= 1 else _grid(rows, everything)
-    best = _best_index(g_all)
+    grids = [(name, grid(rows, mask)) for name, mask in groups]
+    g_all = grids[0][1] if len(scen) <= 1 else grid(rows, everything)
+    best = best_index(g_all)
     bq = (g_all.q_obs[best[0]], g_all.q_lim[best[1]])
     n_seeds = len(set(rows.seed.tolist()))
 
@@ -1021,19 +616,7 @@ def plot_sweep(sweep_dir) -> list[Path]:
     return out
 
 
-def best_summary(g: _Grid, best) -> str:
-    a, b = best
-    s = f"q_obs={g.q_obs[a]:.3g}, q_lim={g.q_lim[b]:.3g}\n(success {100 * g.success[a, b]:.0f}%"
-    if np.isfinite(g.collisions[a, b]):
-        s += f", {g.collisions[a, b]:.2g} collisions/run"
-    if np.isfinite(g.min_sep[a, b]):
-        s += f", min d/ρ {g.min_sep[a, b]:.2f}"
-    if np.isfinite(g.makespan[a, b]):
-        s += f", makespan {g.makespan[a, b]:.1f} s"
-    return s + ")"
-
-
-def _heatmap(ax, gr: _Grid, z, cmap, norm, field, best_q):
+def _heatmap(ax, gr: Grid, z, cmap, norm, field, best_q):
     logx = bool(np.all(gr.q_obs > 0))
     logy = bool(np.all(gr.q_lim > 0))
     xe = _log_edges(gr.q_obs) if logx else _lin_edges(gr.q_obs)

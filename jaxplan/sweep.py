@@ -1,10 +1,12 @@
-"""Weight x seed x scenario grids, batched and resumable (DESIGN.md "A sweep directory").
+"""Weight x seed x scenario grids, batched and resumable (docs/DESIGN.md "A sweep
+directory").
 
     run_sweep(config, out_dir, *, progress=True, batch_size=None, figures=True)
         -> SweepResult
     sweep_points(config) -> list[SweepPoint]          the whole grid, in run order
-    read_sweep_csv(path) -> (rows, info)              complete rows of a sweep.csv
-    COLUMNS, KEY_COLUMNS                              sweep.csv's header and row key
+
+sweep.csv itself (its columns, both of its readers, the best setting) is
+:mod:`jaxplan.sweep_csv`.
 
 The grid is ``[sweep] q_obs x q_lim x seeds x scenarios`` (``scenarios`` empty: the
 config's own fleet, named by its ``[scenario] kind`` or, with ``[[robots]]``, by the
@@ -40,7 +42,7 @@ config (anything but ``[sweep]``, the name and the description) is refused
 (:class:`SweepError`), so rows of two different planners are never mixed.  Growing the
 grid in the same directory is fine: only the new points run.
 
-Columns (:data:`COLUMNS`): the key, then success (1/0), collisions,
+Columns (:data:`jaxplan.sweep_csv.COLUMNS`): the key, then success (1/0), collisions,
 min_separation_ratio, makespan_s (empty: not every robot reached its last waypoint),
 mean_time_to_goal_s (mean over the robots that reached their last waypoint),
 reached_frac (robots that reached their last waypoint), waypoints_frac (waypoints
@@ -54,14 +56,12 @@ per replan is not measured in sweeps (one batch is one program).
 
 Figures (``figures/``, :func:`jaxplan.plots.plot_sweep`): heatmaps of success rate,
 minimum separation ratio and makespan over the grid; the best setting
-(:func:`jaxplan.plots.best_setting`) is printed.
+(:func:`jaxplan.sweep_csv.best_setting`) is printed.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import math
 import os
 import threading
@@ -75,51 +75,44 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from jaxplan import scenarios as _sc
+from jaxplan import scenarios
 from jaxplan.config import Config, ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.costs import Weights
 from jaxplan.experiment import compute_metrics, fleet_params, structures, task_of
-from jaxplan.results import atomic_write_text
+from jaxplan.fileio import append_lines, atomic_write_text
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
 from jaxplan.scenarios import Scenario
 from jaxplan.solver import shard_lanes
+from jaxplan.sweep_csv import (
+    SweepError,
+    best_setting,
+    csv_text,
+    make_key,
+    read_sweep_csv,
+    row_key,
+)
+from jaxplan.timing import timed
 
 __all__ = [
-    "COLUMNS",
-    "KEY_COLUMNS",
     "DEFAULT_BATCH",
     "SweepError",
     "SweepPoint",
     "SweepResult",
     "run_sweep",
     "sweep_points",
-    "read_sweep_csv",
-    "row_key",
 ]
 
-KEY_COLUMNS = ("q_obs", "q_lim", "scenario", "seed")
-COLUMNS = KEY_COLUMNS + (
-    "success", "collisions", "min_separation_ratio", "makespan_s", "mean_time_to_goal_s",
-    "reached_frac", "waypoints_frac", "peak_speed_ratio", "converged_frac", "iterations_median",
-    "fallbacks_kept_previous", "fallbacks_braking", "fallbacks_best_effort",
-    "fallbacks_goal_occupied", "robots", "duration_s", "replans",
-    "error",
-)
 DEFAULT_BATCH = 27  # runs per batch on an accelerator
 # On a CPU one run per device at a time is faster than vmapping runs on one device: a
 # vmapped solver runs every lane for as many iterations as its slowest lane needs
-# (measured, 2 cores: 20 antipodal_10 runs took 127 s as one batch, about 90 s one
-# after another).  Several CPU devices (jaxplan makes one per core) run their runs side
-# by side (_shards).
+# (2 cores: 20 antipodal_10 runs took 127 s as one batch, about 90 s one after another;
+# `JAXPLAN_SWEEP_BATCH=20` against `JAXPLAN_SWEEP_BATCH=1` on such a sweep shows it).
+# Several CPU devices (jaxplan makes one per core) run their runs side by side (_shards).
 DEFAULT_BATCH_CPU = 1  # runs per CPU device
 BATCH_ENV = "JAXPLAN_SWEEP_BATCH"
 PARK_DISTANCE = 1.0e4  # m: where padding robots are parked
 PARK_SPACING = 10.0  # m between parked padding robots
 _PROGRAM = "jaxplan_sweep_batch"  # the batch program's name in JAX's compile events
-
-
-class SweepError(ValueError):
-    """A sweep that cannot run or resume (one line, naming the file)."""
 
 
 @dataclass(frozen=True)
@@ -133,16 +126,7 @@ class SweepPoint:
 
     @property
     def key(self) -> tuple[str, str, str, str]:
-        return _key(self.q_obs, self.q_lim, self.scenario, self.seed)
-
-
-def _key(q_obs, q_lim, scenario, seed) -> tuple[str, str, str, str]:
-    return (repr(float(q_obs)), repr(float(q_lim)), str(scenario), str(int(seed)))
-
-
-def row_key(row: dict) -> tuple[str, str, str, str]:
-    """The key (repr q_obs, repr q_lim, scenario, seed) of a csv row (a dict of strings)."""
-    return _key(float(row["q_obs"]), float(row["q_lim"]), row["scenario"], int(row["seed"]))
+        return make_key(self.q_obs, self.q_lim, self.scenario, self.seed)
 
 
 @dataclass
@@ -152,7 +136,7 @@ class SweepResult:
     out: the sweep directory; csv: its sweep.csv.  total: grid points; skipped: already
     in sweep.csv; ran: run now.  batches: batches run; batch_size: runs per batch.
     compilations: compilations of the batch program (JAX compile events).
-    compile_s, run_s, wall_s: seconds.  best: :func:`jaxplan.plots.best_setting`'s dict
+    compile_s, run_s, wall_s: seconds.  best: :func:`jaxplan.sweep_csv.best_setting`'s dict
     (None without rows).  figures: the heatmap paths.
     """
 
@@ -193,8 +177,8 @@ def _sources(config: Config) -> list[_ScenarioSource]:
 
     def builder(name):
         def build(seed):
-            return _sc.build(name, seed=int(seed)).with_limits(lim.v_max, lim.a_max,
-                                                                lim.j_max)
+            return scenarios.build(name, seed=int(seed)).with_limits(
+                lim.v_max, lim.a_max, lim.j_max)
         return build
 
     return [_ScenarioSource(n, builder(n)) for n in dict.fromkeys(sw.scenarios)]
@@ -211,88 +195,6 @@ def sweep_points(config: Config) -> list[SweepPoint]:
 
 
 # ------------------------------------------------------------------------ sweep.csv
-
-
-@dataclass
-class CsvInfo:
-    """What :func:`read_sweep_csv` found: complete rows kept, a trailing partial line
-    dropped (bytes), malformed or duplicate rows dropped."""
-
-    kept: int = 0
-    partial_bytes: int = 0
-    malformed: int = 0
-    duplicates: int = 0
-
-    @property
-    def clean(self) -> bool:
-        return not (self.partial_bytes or self.malformed or self.duplicates)
-
-
-def read_sweep_csv(path) -> tuple[list[dict], CsvInfo]:
-    """The complete rows of a sweep.csv (dicts of strings, first occurrence per key).
-
-    A trailing line without its newline (a kill mid-write) is dropped, and so are rows
-    with the wrong number of fields or an unreadable key.  Raises SweepError when the
-    header is not :data:`COLUMNS`.  A missing or empty file has no rows.
-    """
-    path = Path(path)
-    info = CsvInfo()
-    if not path.exists():
-        return [], info
-    data = path.read_bytes()
-    end = data.rfind(b"\n") + 1
-    info.partial_bytes = len(data) - end
-    text = data[:end].decode("utf-8", errors="replace")
-    lines = list(csv.reader(io.StringIO(text, newline="")))
-    if not lines:
-        return [], info
-    header = tuple(lines[0])
-    if header != COLUMNS:
-        raise SweepError(f"{path}: columns {', '.join(header)} are not this version's "
-                         f"({', '.join(COLUMNS)}); use another --out")
-    rows, seen = [], set()
-    for fields in lines[1:]:
-        if len(fields) != len(COLUMNS):
-            info.malformed += 1
-            continue
-        row = dict(zip(COLUMNS, fields, strict=True))
-        try:
-            k = row_key(row)
-        except (ValueError, TypeError):
-            info.malformed += 1
-            continue
-        if k in seen:
-            info.duplicates += 1
-            continue
-        seen.add(k)
-        rows.append(row)
-    info.kept = len(rows)
-    return rows, info
-
-
-def _csv_text(rows: list[dict], header: bool = False) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    if header:
-        w.writerow(COLUMNS)
-    for r in rows:
-        w.writerow([r.get(c, "") for c in COLUMNS])
-    return buf.getvalue()
-
-
-def _append(path: Path, text: str) -> None:
-    """Append complete lines in one write, then fsync (a kill leaves at most a partial
-    trailing line, which :func:`read_sweep_csv` drops)."""
-    data = text.encode("utf-8")
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        view = memoryview(data)
-        while view:
-            n = os.write(fd, view)
-            view = view[n:]
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _fmt(x) -> str:
@@ -505,8 +407,6 @@ def _batch_size(batch_size: int | None) -> int:
             except ValueError:
                 raise SweepError(f"{BATCH_ENV}={env!r}: expected a positive integer") from None
         else:
-            import jax
-
             batch_size = (DEFAULT_BATCH_CPU * len(jax.devices("cpu"))
                           if jax.default_backend() == "cpu" else DEFAULT_BATCH)
     if int(batch_size) < 1:
@@ -529,6 +429,156 @@ def _structure(config: Config, n_dim: int) -> RolloutStructure:
 
 
 # ------------------------------------------------------------------------ the sweep
+
+
+@dataclass
+class _Tally:
+    """Seconds compiling and running, and batches run, so far."""
+
+    compile_s: float = 0.0
+    run_s: float = 0.0
+    batches: int = 0
+
+
+class _Progress:
+    """The progress bar over runs, opened after the first compilation (so that its ETA
+    counts runs only); does nothing when disabled."""
+
+    def __init__(self, enabled: bool, total: int, name: str, initial: int):
+        self.enabled, self.total, self.name, self.initial = enabled, total, name, initial
+        self.bar = None
+
+    def start(self) -> None:
+        if self.enabled and self.bar is None:
+            from jaxplan.progress import progress_bar
+
+            self.bar = progress_bar(self.total, self.name, "run", initial=self.initial)
+
+    def update(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _resume_csv(csv_path: Path, say) -> set:
+    """The keys already in sweep.csv; a fresh file gets its header, and a damaged one (a
+    kill mid-write) is rewritten with its complete rows, atomically."""
+    rows, info = read_sweep_csv(csv_path)
+    if not csv_path.exists() or not info.clean or csv_path.stat().st_size == 0:
+        atomic_write_text(csv_path, csv_text(rows, header=True))
+        if not info.clean:
+            say(f"{csv_path}: dropped {info.partial_bytes} bytes of a partial last line, "
+                f"{info.malformed} malformed and {info.duplicates} duplicate rows")
+    return {row_key(r) for r in rows}
+
+
+def _build_scenarios(config: Config, todo: list[SweepPoint]) -> dict[tuple[str, int], Scenario]:
+    """Every (scenario label, seed) of the points, built once."""
+    sources = {s.label: s for s in _sources(config)}
+    built: dict[tuple[str, int], Scenario] = {}
+    for p in todo:
+        if (p.scenario, p.seed) not in built:
+            try:
+                built[(p.scenario, p.seed)] = sources[p.scenario].build(p.seed)
+            except (scenarios.ScenarioError, ValueError) as e:
+                raise SweepError(f"{config.source or config.name}: scenario "
+                                 f"{p.scenario!r}, seed {p.seed}: {e}") from None
+    return built
+
+
+def _prepare(config: Config, point: SweepPoint, scenario: Scenario, m_pad: int) -> _Prepared:
+    """A point's fleet parameters and task, as numpy, padded to m_pad robots."""
+    fp = fleet_params(config, scenario, _weights(config, point.q_obs, point.q_lim))
+    fp, task = _pad_robots(jax.tree.map(np.asarray, fp),
+                           jax.tree.map(np.asarray, task_of(config, scenario)), m_pad)
+    return _Prepared(point, scenario, fp, task)
+
+
+def _compile_batch(fpb, taskb, structure: RolloutStructure, batch: int, shape, tally: _Tally,
+                   say):
+    """The batch program compiled for these stacked inputs; ``shape`` = (robots, dims,
+    waypoints) for the message."""
+    m_pad, n_dim, n_wp = shape
+    sh = _shards(batch)
+    say(f"compiling the planner: batch of {batch} runs x {m_pad} robots "
+        f"x {structure.steps} replans ({n_dim}-D, {n_wp} waypoints"
+        + (f"; {sh} CPU devices, {batch // sh} run(s) each)" if sh > 1 else ")"))
+    compiled, seconds = timed(
+        lambda: _batch_jit.lower(fpb, taskb, structure=structure, shards=sh).compile())
+    tally.compile_s += seconds
+    say(f"compiled in {seconds:.1f} s")
+    return compiled
+
+
+def _run_batch(config: Config, compiled, chunk: list[_Prepared], fpb, taskb,
+               csv_path: Path) -> None:
+    """Run one stacked batch; append the rows of its real (unpadded) runs to sweep.csv."""
+    (reached, reach_time), records = compiled(fpb, taskb)
+    records = jax.tree.map(np.asarray, records)
+    final = _View(np.asarray(reached), np.asarray(reach_time))
+    rows = [_run_metrics(config, chunk[b], records, final, b) for b in range(len(chunk))]
+    append_lines(csv_path, csv_text(rows))
+
+
+def _run_group(config: Config, shape_key, points: list[SweepPoint], built, batch: int,
+               csv_path: Path, tally: _Tally, bar: _Progress, say) -> None:
+    """Run the points of one shape group (dims, waypoints) in batches of ``batch``, the
+    last one padded by repeating its last run; each batch's rows appended to sweep.csv."""
+    n_dim, n_wp = shape_key
+    m_pad = max(built[(p.scenario, p.seed)].num_robots for p in points)
+    structure = _structure(config, n_dim)
+    preps = [_prepare(config, p, built[(p.scenario, p.seed)], m_pad) for p in points]
+    compiled = None
+    for i in range(0, len(preps), batch):
+        chunk = preps[i:i + batch]
+        full = chunk + [chunk[-1]] * (batch - len(chunk))
+        fpb = _stack([c.fp for c in full])
+        taskb = _stack([c.task for c in full])
+        if compiled is None:
+            compiled = _compile_batch(fpb, taskb, structure, batch, (m_pad, n_dim, n_wp),
+                                      tally, say)
+            bar.start()
+        _, seconds = timed(_run_batch, config, compiled, chunk, fpb, taskb, csv_path)
+        tally.run_s += seconds
+        tally.batches += 1
+        bar.update(len(chunk))
+
+
+def _best_and_figures(csv_path: Path, out: Path, figures: bool):
+    """(rows in sweep.csv, the best setting or None, the heatmap paths)."""
+    rows, _ = read_sweep_csv(csv_path)
+    if not rows:
+        return 0, None, []
+    best = best_setting(csv_path)
+    if not figures:
+        return len(rows), best, []
+    from jaxplan import plots
+
+    return len(rows), best, plots.plot_sweep(out)
+
+
+def _summary(res: SweepResult, n_rows: int, cpu_s: float) -> list[str]:
+    """The lines run_sweep prints at the end."""
+    lines = [
+        f"compilations: {res.compilations}",
+        f"runs: {res.ran} run now, {res.skipped} skipped (already done), "
+        f"{n_rows} rows in {res.csv}",
+        f"time: {res.wall_s:.1f} s wall ({res.compile_s:.1f} s compiling, {res.run_s:.1f} s "
+        f"running {res.batches} batch{'es' if res.batches != 1 else ''}); {cpu_s:.1f} s CPU",
+    ]
+    best = res.best
+    if best is not None:
+        lines.append(
+            "best setting: q_obs = {q_obs:.6g}, q_lim = {q_lim:.6g}  (success {s:.0f}%, "
+            "{collisions:.3g} collisions/run, min separation ratio {msr:.3f}, makespan "
+            "{mk} over {runs} runs)".format(
+                s=100 * best["success_rate"], msr=best["min_separation_ratio"],
+                mk=(f"{best['makespan_s']:.2f} s" if math.isfinite(best["makespan_s"])
+                    else "n/a"), **best))
+    return lines + [f"figure: {f}" for f in res.figures]
 
 
 def run_sweep(config: Config, out_dir, *, progress: bool = True,
@@ -556,126 +606,35 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "sweep.csv"
     _guard_config(out, config)
-
-    rows, info = read_sweep_csv(csv_path)
-    if not csv_path.exists() or not info.clean or csv_path.stat().st_size == 0:
-        # a fresh file, or a repair after a kill mid-write: rewrite atomically
-        atomic_write_text(csv_path, _csv_text(rows, header=True))
-        if not info.clean:
-            say(f"{csv_path}: dropped {info.partial_bytes} bytes of a partial last line, "
-                f"{info.malformed} malformed and {info.duplicates} duplicate rows")
-    done = {row_key(r) for r in rows}
+    done = _resume_csv(csv_path, say)
     points = sweep_points(config)
     todo = [p for p in points if p.key not in done]
     skipped = len(points) - len(todo)
-    B = _batch_size(batch_size)
+    batch = min(_batch_size(batch_size), len(todo))
 
     _CompileCounter.install()
     c0 = _CompileCounter.get()
-    compile_s = run_s = 0.0
-    n_batches = 0
-    B_used = 0
+    tally = _Tally()
     if todo:
-        B_used = min(B, len(todo))
-        sources = {s.label: s for s in _sources(config)}
         say(f"sweep {config.name}: {len(points)} runs ({skipped} already in {csv_path}), "
-            f"{len(todo)} to go in batches of {B_used}")
-        # build every remaining scenario once (seeded), group by shape (N, W)
-        scen: dict[tuple[str, int], Scenario] = {}
+            f"{len(todo)} to go in batches of {batch}")
+        built = _build_scenarios(config, todo)
+        groups: dict[tuple[int, int], list[SweepPoint]] = {}  # by shape (dims, waypoints)
         for p in todo:
-            if (p.scenario, p.seed) not in scen:
-                try:
-                    scen[(p.scenario, p.seed)] = sources[p.scenario].build(p.seed)
-                except (_sc.ScenarioError, ValueError) as e:
-                    raise SweepError(f"{config.source or config.name}: scenario "
-                                     f"{p.scenario!r}, seed {p.seed}: {e}") from None
-        groups: dict[tuple[int, int], list[SweepPoint]] = {}
-        for p in todo:
-            sc = scen[(p.scenario, p.seed)]
+            sc = built[(p.scenario, p.seed)]
             groups.setdefault((sc.dim, sc.num_waypoints), []).append(p)
-
-        bar = None
-
-        def open_bar():  # after the first compilation, so that the ETA counts runs only
-            if not progress:
-                return None
-            from jaxplan.progress import progress_bar
-
-            return progress_bar(len(points), config.name, "run", initial=skipped)
-
+        bar = _Progress(progress, len(points), config.name, skipped)
         try:
-            for (n_dim, n_wp), pts in groups.items():
-                m_pad = max(scen[(p.scenario, p.seed)].num_robots for p in pts)
-                structure = _structure(config, n_dim)
-                preps = []
-                for p in pts:
-                    sc = scen[(p.scenario, p.seed)]
-                    fp = fleet_params(config, sc, _weights(config, p.q_obs, p.q_lim))
-                    fp, task = _pad_robots(jax.tree.map(np.asarray, fp),
-                                           jax.tree.map(np.asarray, task_of(config, sc)),
-                                           m_pad)
-                    preps.append(_Prepared(p, sc, fp, task))
-                batches = [preps[i:i + B_used] for i in range(0, len(preps), B_used)]
-                compiled = None
-                for chunk in batches:
-                    n_real = len(chunk)
-                    full = chunk + [chunk[-1]] * (B_used - n_real)
-                    fpb = _stack([c.fp for c in full])
-                    taskb = _stack([c.task for c in full])
-                    if compiled is None:
-                        sh = _shards(B_used)
-                        say(f"compiling the planner: batch of {B_used} runs x {m_pad} robots "
-                            f"x {structure.steps} replans ({n_dim}-D, {n_wp} waypoints"
-                            + (f"; {sh} CPU devices, {B_used // sh} run(s) each)" if sh > 1
-                               else ")"))
-                        t0 = time.perf_counter()
-                        compiled = _batch_jit.lower(fpb, taskb, structure=structure,
-                                                    shards=sh).compile()
-                        compile_s += time.perf_counter() - t0
-                        say(f"compiled in {time.perf_counter() - t0:.1f} s")
-                        if bar is None:
-                            bar = open_bar()
-                    t0 = time.perf_counter()
-                    (reached, reach_time), records = compiled(fpb, taskb)
-                    records = jax.tree.map(np.asarray, records)
-                    final = _View(np.asarray(reached), np.asarray(reach_time))
-                    new_rows = [_run_metrics(config, chunk[b], records, final, b)
-                                for b in range(n_real)]
-                    _append(csv_path, _csv_text(new_rows))
-                    run_s += time.perf_counter() - t0
-                    n_batches += 1
-                    if bar is not None:
-                        bar.update(n_real)
+            for shape_key, pts in groups.items():
+                _run_group(config, shape_key, pts, built, batch, csv_path, tally, bar, say)
         finally:
-            if bar is not None:
-                bar.close()
+            bar.close()
     compilations = _CompileCounter.get() - c0
 
-    best = None
-    figs: list = []
-    final_rows, _ = read_sweep_csv(csv_path)
-    if final_rows:
-        from jaxplan import plots
-
-        best = plots.best_setting(csv_path)
-        if figures:
-            figs = plots.plot_sweep(out)
-    wall = time.perf_counter() - t_wall
-    res = SweepResult(out, csv_path, len(points), skipped, len(todo), n_batches, B_used,
-                      compilations, compile_s, run_s, wall, best, figs)
-    say(f"compilations: {compilations}")
-    say(f"runs: {len(todo)} run now, {skipped} skipped (already done), "
-        f"{len(final_rows)} rows in {csv_path}")
-    say(f"time: {wall:.1f} s wall ({compile_s:.1f} s compiling, {run_s:.1f} s running "
-        f"{n_batches} batch{'es' if n_batches != 1 else ''}); "
-        f"{time.process_time() - cpu0:.1f} s CPU")
-    if best is not None:
-        say("best setting: q_obs = {q_obs:.6g}, q_lim = {q_lim:.6g}  (success {s:.0f}%, "
-            "{collisions:.3g} collisions/run, min separation ratio {msr:.3f}, makespan "
-            "{mk} over {runs} runs)".format(
-                s=100 * best["success_rate"], msr=best["min_separation_ratio"],
-                mk=(f"{best['makespan_s']:.2f} s" if math.isfinite(best["makespan_s"])
-                    else "n/a"), **best))
-    for f in figs:
-        say(f"figure: {f}")
+    n_rows, best, figs = _best_and_figures(csv_path, out, figures)
+    res = SweepResult(out, csv_path, len(points), skipped, len(todo), tally.batches, batch,
+                      compilations, tally.compile_s, tally.run_s,
+                      time.perf_counter() - t_wall, best, figs)
+    for line in _summary(res, n_rows, time.process_time() - cpu0):
+        say(line)
     return res

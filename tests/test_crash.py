@@ -3,8 +3,8 @@ final name is whole, nothing is left that a reader could take for a result, and 
 the same command again completes the directory.
 
 jaxplan/results.py writes each file to a hidden temporary name and renames it into
-place (config.toml, trajectories.npz, then metrics.json, which marks a complete run;
-the figures last).  Two kills land in the write phase: one as soon as the first entry
+place (jaxplan/fileio.py): config.toml, trajectories.npz, then metrics.json, which marks
+a complete run; the figures last.  Two kills land in the write phase: one as soon as the first entry
 appears in the run directory (config.toml's temporary file: config.toml being written),
 one as soon as the first entry appears in figures/ (the first figure being written).
 A third run completes.
@@ -98,7 +98,7 @@ def _check_whole(out: Path) -> set[str]:
         assert {"config.toml", "trajectories.npz"} <= present, present
         from jaxplan.results import load_run
 
-        load_run(out)
+        load_run(out, complete=True)
     return present
 
 

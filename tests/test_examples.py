@@ -129,10 +129,10 @@ def test_run_scenario(tmp_path):
         k = int(np.argmin(np.abs(a["t"] - t)))
         assert np.linalg.norm(a["pos"][i, k] - a["goal"][i]) <= tol + 0.05
     # the run directory written holds the same metrics
-    disk, arrays = load_run(tmp_path / "run")
+    disk = load_run(tmp_path / "run", complete=True)
     assert (tmp_path / "run" / "config.toml").exists()
     for k in ("success", "collisions", "min_separation_ratio", "makespan_s"):
-        assert disk[k] == m[k]
-    assert [r["time_to_goal_s"] for r in disk["per_robot"]] == ttg
-    np.testing.assert_array_equal(arrays["pos"], a["pos"])
+        assert disk.metrics[k] == m[k]
+    assert [r["time_to_goal_s"] for r in disk.metrics["per_robot"]] == ttg
+    np.testing.assert_array_equal(disk.pos, a["pos"])
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["success"] is True

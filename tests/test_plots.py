@@ -12,8 +12,10 @@ import pytest
 from PIL import Image
 
 import jaxplan  # noqa: F401
-from jaxplan import plots
+from jaxplan import media, plots
 from jaxplan.metrics import sample_pieces
+from jaxplan.results import load_run
+from jaxplan.sweep_csv import best_setting
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 GIF_MAGICS = (b"GIF89a", b"GIF87a")
@@ -144,19 +146,19 @@ def test_frame_count_is_bounded():
 
 def test_limits_from_config_metrics_and_vehicles(tmp_path):
     run = make_run(tmp_path / "a")
-    d = plots.load_run(run)
+    d = load_run(run)
     np.testing.assert_allclose(d.limits["v_max"], [2.0, 2.0, 2.0])  # vehicle table
     run = make_run(tmp_path / "b", config='name = "swap"\n[limits]\nv_max = 1.5\n')
-    d = plots.load_run(run)
+    d = load_run(run)
     np.testing.assert_allclose(d.limits["v_max"], 1.5)
     np.testing.assert_allclose(d.limits["a_max"], 4.0)
     assert d.name == "swap"
     (run / "metrics.json").write_text(json.dumps({"limits": {"a_max": 3.0}}))
-    np.testing.assert_allclose(plots.load_run(run).limits["a_max"], 3.0)
+    np.testing.assert_allclose(load_run(run).limits["a_max"], 3.0)
 
 
 def test_exact_pair_minima_from_pieces(tmp_path):
-    d = plots.load_run(make_run(tmp_path / "r"))
+    d = load_run(make_run(tmp_path / "r"))
     dist, _, exact = plots._pair_minima(d)
     assert exact
     assert dist[0, 1] == pytest.approx(0.7, abs=1e-9)
@@ -182,14 +184,14 @@ def test_bad_inputs(tmp_path):
         plots.plot_run(tmp_path)
     run = make_run(tmp_path / "r", drop=("seg_t1",))
     with pytest.raises(ValueError, match=r"trajectories\.npz: seg_t1: missing"):
-        plots.load_run(run)
+        load_run(run)
     run = make_run(tmp_path / "c", config="[limits]\nv_max = -1\n")
     with pytest.raises(ValueError, match=r"config\.toml: limits\.v_max"):
-        plots.load_run(run)
+        load_run(run)
     run = make_run(tmp_path / "m")
     (run / "metrics.json").write_text("{not json")
     with pytest.raises(ValueError, match=r"metrics\.json: not valid JSON"):
-        plots.load_run(run)
+        load_run(run)
 
 
 # ------------------------------------------------------------------------------- sweeps
@@ -231,7 +233,7 @@ def write_csv(path, rows, columns=None):
 
 def test_best_setting_order(tmp_path):
     csv = write_csv(tmp_path / "sweep.csv", sweep_rows())
-    best = plots.best_setting(csv)
+    best = best_setting(csv)
     assert (best["q_obs"], best["q_lim"]) == (10.0, 1.0)
     assert best["success_rate"] == 1.0
     assert best["collisions"] == 0.0
@@ -243,12 +245,12 @@ def test_best_setting_order(tmp_path):
     for r in rows:
         if (r["q_obs"], r["q_lim"]) == (1.0, 0.01):
             r["min_separation_ratio"] = 3.0
-    assert (plots.best_setting(write_csv(tmp_path / "b.csv", rows))["q_lim"]) == 1.0
+    assert (best_setting(write_csv(tmp_path / "b.csv", rows))["q_lim"]) == 1.0
     # success outranks everything: one failure at the best cell moves it to (10, 0.1)
     rows = sweep_rows()
     rows[[k for k, r in enumerate(rows) if (r["q_obs"], r["q_lim"]) == (10.0, 1.0)][0]][
         "success"] = "0"
-    best = plots.best_setting(write_csv(tmp_path / "c.csv", rows))
+    best = best_setting(write_csv(tmp_path / "c.csv", rows))
     assert (best["q_obs"], best["q_lim"]) == (10.0, 0.1)
 
 
@@ -277,22 +279,22 @@ def test_sweep_bad_csv(tmp_path):
     rows[3]["success"] = "maybe"
     write_csv(tmp_path / "b" / "sweep.csv", rows)
     with pytest.raises(ValueError, match=r"sweep\.csv: success: line 5"):
-        plots.best_setting(tmp_path / "b" / "sweep.csv")
+        best_setting(tmp_path / "b" / "sweep.csv")
     with pytest.raises(ValueError, match=r"sweep\.csv: file not found"):
         plots.plot_sweep(tmp_path / "nothing")
-    assert math.isfinite(plots.best_setting(write_csv(tmp_path / "c.csv", sweep_rows()))["q_obs"])
+    assert math.isfinite(best_setting(write_csv(tmp_path / "c.csv", sweep_rows()))["q_obs"])
 
 
 def test_mp4_falls_back_to_gif_without_ffmpeg(tmp_path, monkeypatch):
-    monkeypatch.setattr(plots.shutil, "which", lambda name: None)
+    monkeypatch.setattr(media.shutil, "which", lambda name: None)
     run = make_run(tmp_path / "r")
     with pytest.warns(UserWarning, match="ffmpeg not found"):
-        path = plots._animate(plots.load_run(run), run / "figures", mp4=True, max_frames=6)
+        path = plots._animate(load_run(run), run / "figures", mp4=True, max_frames=6)
     assert path.name == "animation.gif"
     check_gif(path, (640, 480))
 
 
-@pytest.mark.skipif(plots.shutil.which("ffmpeg") is None, reason="ffmpeg not on PATH")
+@pytest.mark.skipif(not media.ffmpeg_available(), reason="ffmpeg not on PATH")
 def test_mp4_with_ffmpeg(tmp_path):
     run = make_run(tmp_path / "r")
     path = plots.plot_run(run, mp4=True, max_frames=12)[-1]

@@ -66,9 +66,9 @@ def test_registry_scenarios_label_rows():
 
 
 def _write(path: Path, rows, partial: str = ""):
-    from jaxplan.sweep import _csv_text
+    from jaxplan.sweep_csv import csv_text
 
-    path.write_text(_csv_text(rows, header=True) + partial)
+    path.write_text(csv_text(rows, header=True) + partial)
 
 
 def _row(qo, ql, seed, **kw):
@@ -80,7 +80,7 @@ def _row(qo, ql, seed, **kw):
 
 
 def test_csv_reader_drops_partial_malformed_and_duplicate_lines(tmp_path):
-    from jaxplan.sweep import COLUMNS, read_sweep_csv, row_key
+    from jaxplan.sweep_csv import COLUMNS, read_sweep_csv, row_key
 
     p = tmp_path / "sweep.csv"
     rows = [_row(1.0, 0.1, 0), _row(1.0, 0.1, 1), _row(1.0, 0.1, 0, success="0")]
@@ -101,7 +101,7 @@ def test_csv_reader_drops_partial_malformed_and_duplicate_lines(tmp_path):
 
 
 def test_csv_reader_refuses_foreign_columns(tmp_path):
-    from jaxplan.sweep import SweepError, read_sweep_csv
+    from jaxplan.sweep_csv import SweepError, read_sweep_csv
 
     p = tmp_path / "sweep.csv"
     p.write_text("a,b\n1,2\n")
