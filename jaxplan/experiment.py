@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from dataclasses import dataclass
 
 import jax
@@ -35,6 +34,7 @@ from jaxplan.planner import (
 )
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
+from jaxplan.timing import timed
 
 T_MIN = 0.05  # s, lower bound on every plan's horizon
 ACCEPT_VIOLATION = 1e-3  # m^2: largest collision-constraint violation accepted at max-iters
@@ -72,7 +72,7 @@ def structures(config: Config, *, only_needed: bool = True) -> RolloutStructure:
     coast = pc.coast_samples if (np.any(free) or not only_needed) else 0
     nlp = NLPStructure(
         n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
-        collision=pc.collision, n_collision_samples=_mult4(pc.n_samples),
+        collision=pc.collision, n_collision_samples=_round_up_to_4(pc.n_samples),
         n_coast_samples=coast,
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
@@ -85,7 +85,8 @@ def structures(config: Config, *, only_needed: bool = True) -> RolloutStructure:
                             else 0)
 
 
-def _mult4(n: int) -> int:
+def _round_up_to_4(n: int) -> int:
+    """n rounded up to a multiple of 4, at least 4."""
     return max(4, 4 * math.ceil(n / 4))
 
 
@@ -157,22 +158,9 @@ def simulate(fp: FleetParams, task: Task, structure: RolloutStructure, progress=
     """
     fn = step_runner(structure)
     st = initial_state(task, structure)
-    t0 = time.perf_counter()
-    compiled = fn.lower(fp, task, st).compile()
-    compile_s = time.perf_counter() - t0
-    recs = []
-    ms = np.empty(structure.steps)
-    t_start = time.perf_counter()
-    for k in range(structure.steps):
-        t0 = time.perf_counter()
-        st, rec = compiled(fp, task, st)
-        jax.block_until_ready(st)
-        ms[k] = 1e3 * (time.perf_counter() - t0)
-        recs.append(rec)
-        if progress:
-            progress(k + 1)
-    run_s = time.perf_counter() - t_start
-    records = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *recs)
+    compiled, compile_s = timed(lambda: fn.lower(fp, task, st).compile())
+    st, records, run_s, ms = _run_periods(lambda st: compiled(fp, task, st), st,
+                                          structure.steps, progress)
     return st, records, compile_s, run_s, ms
 
 
@@ -195,23 +183,37 @@ def simulate_mjx(config: Config, scenario: Scenario, fp: FleetParams, task: Task
     period = 1.0 / config.planner.replan_hz
     fn = jax.jit(lambda fp, task, st, ss: cl.mjx_step(fp, task, st, ss, structure, sim, period))
     st, ss = cl.mjx_initial_state(task, structure, sim)
-    t0 = time.perf_counter()
-    compiled = fn.lower(fp, task, st, ss).compile()
-    compile_s = time.perf_counter() - t0
-    recs = []
-    ms = np.empty(structure.steps)
-    t_start = time.perf_counter()
-    for k in range(structure.steps):
-        t0 = time.perf_counter()
-        (st, ss), rec = compiled(fp, task, st, ss)
-        jax.block_until_ready(st)
-        ms[k] = 1e3 * (time.perf_counter() - t0)
-        recs.append(rec)
-        if progress:
-            progress(k + 1)
-    run_s = time.perf_counter() - t_start
-    stacked = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *recs)
+    compiled, compile_s = timed(lambda: fn.lower(fp, task, st, ss).compile())
+    (st, ss), stacked, run_s, ms = _run_periods(lambda c: compiled(fp, task, *c), (st, ss),
+                                                structure.steps, progress)
     return st, stacked.step, stacked.period, compile_s, run_s, ms
+
+
+def stack_trees(items):
+    """Stack a list of equally shaped pytrees into one pytree of numpy arrays (leading
+    axis: the list)."""
+    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *items)
+
+
+def _run_periods(call, carry, steps: int, progress):
+    """``carry, record = call(carry)`` ``steps`` times, timing every call.
+
+    Returns (final carry, the records stacked (numpy), run_s: seconds of the whole loop,
+    ms (steps,): milliseconds of each call).  ``progress``: optional callable(n_done).
+    """
+    def loop(carry):
+        recs = []
+        ms = np.empty(steps)
+        for k in range(steps):
+            (carry, rec), seconds = timed(call, carry)
+            ms[k] = 1e3 * seconds
+            recs.append(rec)
+            if progress:
+                progress(k + 1)
+        return carry, stack_trees(recs), ms
+
+    (carry, records, ms), run_s = timed(loop, carry)
+    return carry, records, run_s, ms
 
 
 def sim_metrics(scenario: Scenario, period, duration: float) -> tuple[dict, dict]:
@@ -272,46 +274,14 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
                     solve_ms) -> tuple[dict, dict]:
     """metrics.json dict and trajectories.npz dict of a finished run."""
     M = scenario.start.shape[0]
-    dt = 1.0 / config.planner.replan_hz
-    duration = records.t.shape[0] * dt
-    seg_robot, seg_t0, seg_t1, seg_c = pieces_from_records(records)
-    min_dist, t_min = mt.pairwise_min_separation(seg_robot, seg_t0, seg_t1, seg_c, num_robots=M)
+    duration = records.t.shape[0] * (1.0 / config.planner.replan_hz)
+    pieces = pieces_from_records(records)
+    min_dist, _ = mt.pairwise_min_separation(*pieces, num_robots=M)
     sep = mt.separation_report(min_dist, scenario.radius)
-    kin = mt.kinematics(seg_robot, seg_t0, seg_t1, seg_c, num_robots=M)
-    reached = np.asarray(final.reached)
-    reach_time = np.asarray(final.reach_time)
-    reached = reached & (reach_time <= duration + 1e-9)
+    kin = mt.kinematics(*pieces, num_robots=M)
     frozen_robot = config.faults.frozen_robot if config.faults.enabled else -1
-    responsive = np.arange(M) != frozen_robot
-    all_reached = bool(np.all(reached[responsive]))
-    ttg = np.where(reached[:, -1], reach_time[:, -1], np.nan)
-    makespan = float(np.nanmax(ttg[responsive])) if all_reached else None
+    reached, ttg, all_reached, makespan = _goals(final, duration, M, frozen_robot)
     info = records.info
-    fallback = np.asarray(info.fallback)
-    status = np.asarray(info.status)
-    converged = status == slv.CONVERGED
-    per_robot = []
-    for i in range(M):
-        per_robot.append({
-            "vehicle": scenario.vehicles[i],
-            "reached": bool(np.all(reached[i])),
-            "waypoints_reached": int(np.sum(reached[i])),
-            "time_to_goal_s": _num(ttg[i]),
-            "path_length_m": _num(kin.path_length_m[i]),
-            "max_speed": _num(kin.max_speed[i]),
-            "max_acc": _num(kin.max_acc[i]),
-            "max_jerk": _num(kin.max_jerk[i]),
-            "v_max": float(scenario.v_max[i]),
-            "a_max": float(scenario.a_max[i]),
-            "j_max": float(scenario.j_max[i]),
-        })
-    solver = mt.solver_summary(solve_ms, converged)
-    solver.update({
-        "timed_replans": int(len(solve_ms)),
-        "iterations_median": float(np.median(np.asarray(info.iterations))),
-        "status_counts": {name: int(np.sum(status == code))
-                          for code, name in slv.STATUS_NAMES.items()},
-    })
     metrics = {
         "name": config.name,
         "backend": config.sim.backend,
@@ -326,22 +296,76 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         "robots": M,
         "peak_speed": _num(np.nanmax(kin.max_speed)),
         "peak_speed_over_limit": _num(np.nanmax(kin.max_speed / scenario.v_max)),
-        "per_robot": per_robot,
-        "solver": {k: _num(v) if isinstance(v, float) else v for k, v in solver.items()},
+        "per_robot": _per_robot(scenario, reached, ttg, kin),
+        "solver": _solver(info, solve_ms),
         "faults": _fault_summary(config, records, sep, min_dist, scenario, frozen_robot),
         "fallbacks": {
-            "kept_previous": int(np.sum(fallback == KEPT_PREVIOUS)),
-            "braking": int(np.sum(fallback == BRAKING)),
-            "best_effort": int(np.sum(fallback == BEST_EFFORT)),
-            "accepted": int(np.sum(fallback == ACCEPTED)),
+            **_fallback_counts(info.fallback),
+            "accepted": int(np.sum(np.asarray(info.fallback) == ACCEPTED)),
             "goal_occupied": int(np.sum(np.asarray(info.goal_moved))),
         },
     }
+    return metrics, _run_arrays(scenario, records, pieces, min_dist, duration)
+
+
+def _goals(final, duration: float, M: int, frozen_robot: int):
+    """(reached (M, W) within the run, time to the last waypoint (M,) NaN if not reached,
+    every responsive robot reached every waypoint, makespan s or None)."""
+    reach_time = np.asarray(final.reach_time)
+    reached = np.asarray(final.reached) & (reach_time <= duration + 1e-9)
+    responsive = np.arange(M) != frozen_robot
+    all_reached = bool(np.all(reached[responsive]))
+    ttg = np.where(reached[:, -1], reach_time[:, -1], np.nan)
+    makespan = float(np.nanmax(ttg[responsive])) if all_reached else None
+    return reached, ttg, all_reached, makespan
+
+
+def _per_robot(scenario: Scenario, reached, ttg, kin) -> list[dict]:
+    """metrics.json ``per_robot``."""
+    return [{
+        "vehicle": scenario.vehicles[i],
+        "reached": bool(np.all(reached[i])),
+        "waypoints_reached": int(np.sum(reached[i])),
+        "time_to_goal_s": _num(ttg[i]),
+        "path_length_m": _num(kin.path_length_m[i]),
+        "max_speed": _num(kin.max_speed[i]),
+        "max_acc": _num(kin.max_acc[i]),
+        "max_jerk": _num(kin.max_jerk[i]),
+        "v_max": float(scenario.v_max[i]),
+        "a_max": float(scenario.a_max[i]),
+        "j_max": float(scenario.j_max[i]),
+    } for i in range(len(reached))]
+
+
+def _solver(info, solve_ms) -> dict:
+    """metrics.json ``solver``: replan wall times, convergence, iterations, statuses."""
+    status = np.asarray(info.status)
+    solver = mt.solver_summary(solve_ms, status == slv.CONVERGED)
+    solver.update({
+        "timed_replans": int(len(solve_ms)),
+        "iterations_median": float(np.median(np.asarray(info.iterations))),
+        "status_counts": {name: int(np.sum(status == code))
+                          for code, name in slv.STATUS_NAMES.items()},
+    })
+    return {k: _num(v) if isinstance(v, float) else v for k, v in solver.items()}
+
+
+def _fallback_counts(fallback) -> dict:
+    """Robot replans not accepted, by fallback: kept_previous, braking, best_effort."""
+    fallback = np.asarray(fallback)
+    return {"kept_previous": int(np.sum(fallback == KEPT_PREVIOUS)),
+            "braking": int(np.sum(fallback == BRAKING)),
+            "best_effort": int(np.sum(fallback == BEST_EFFORT))}
+
+
+def _run_arrays(scenario: Scenario, records, pieces, min_dist, duration: float) -> dict:
+    """trajectories.npz: samples at SAMPLE_HZ, the fleet, the executed pieces, replans."""
+    M = scenario.start.shape[0]
+    seg_robot, seg_t0, seg_t1, seg_c = pieces
     t = np.arange(0.0, duration + 1e-9, 1.0 / SAMPLE_HZ)
     pos, vel, acc = mt.sample_pieces(seg_robot, seg_t0, seg_t1, seg_c, t, num_robots=M,
                                      outside="clamp")
-    N = scenario.start.shape[1]
-    arrays = {
+    return {
         "t": t, "pos": pos, "vel": vel, "acc": acc,
         "radius": np.asarray(scenario.radius, np.float64),
         "goal": np.asarray(scenario.waypoints[:, -1], np.float64),
@@ -351,18 +375,15 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         "seg_robot": seg_robot, "seg_t0": seg_t0, "seg_t1": seg_t1, "seg_coeffs": seg_c,
         "min_dist": np.where(np.isfinite(min_dist), min_dist, np.nan),
         "replan_t": np.asarray(records.t),
-        "status": status.astype(np.int32),
-        "fallback": fallback.astype(np.int32),
+        "status": np.asarray(records.info.status).astype(np.int32),
+        "fallback": np.asarray(records.info.fallback).astype(np.int32),
     }
-    del N
-    return metrics, arrays
 
 
 def _fault_summary(config, records, sep, min_dist, scenario, frozen_robot) -> dict:
     """metrics.json ``faults``: what was injected and what it cost."""
     fc = config.faults
     comm = np.asarray(records.comm)
-    fb = np.asarray(records.info.fallback)
     rho = scenario.radius[:, None] + scenario.radius[None, :]
     hit = np.triu(min_dist < rho, 1)
     responsive_hits = int(np.sum(hit)) if frozen_robot < 0 else int(np.sum(
@@ -377,9 +398,7 @@ def _fault_summary(config, records, sep, min_dist, scenario, frozen_robot) -> di
         "messages_lost": int(comm[:, 1].sum()),
         "max_view_age_s": float(comm[:, 2].max()) if len(comm) else 0.0,
         "collisions_involving_responsive": responsive_hits,
-        "fallback_kept_previous": int(np.sum(fb == KEPT_PREVIOUS)),
-        "fallback_braking": int(np.sum(fb == BRAKING)),
-        "fallback_best_effort": int(np.sum(fb == BEST_EFFORT)),
+        **{f"fallback_{k}": v for k, v in _fallback_counts(records.info.fallback).items()},
         "goal_occupied": int(np.sum(np.asarray(records.info.goal_moved))),
     }
 

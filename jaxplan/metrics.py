@@ -1,5 +1,5 @@
 """Post-run metrics on the host (NumPy): exact continuous-time separation, kinematics,
-sampling, time to goal and solver timing (DESIGN.md "A run directory", MATH.md 4).
+sampling, time to goal and solver timing (docs/DESIGN.md "A run directory", docs/MATH.md 4).
 
 Everything here works on the executed plan pieces of a run, as stored in
 ``trajectories.npz``:
@@ -16,7 +16,7 @@ allowed (nothing is measured in a gap).  Pieces of different robots need not ali
 every pair of pieces of two robots whose closed time intervals intersect is compared on
 the intersection.
 
-Exactness (MATH.md 4).  On an overlap [a, b] both polynomials are re-expressed in the
+Exactness (docs/MATH.md 4).  On an overlap [a, b] both polynomials are re-expressed in the
 common normalised time u = (t - a) / (b - a) in [0, 1], so that the coefficients of
 every polynomial handed to the root finder are well scaled for intervals of 1e-3 s to
 1e3 s.  The extrema of |p(u)|^2 on [0, 1] lie at u = 0, u = 1 or at a real root of
@@ -287,7 +287,7 @@ def pairwise_min_separation(seg_robot, seg_t0, seg_t1, seg_coeffs, num_robots=No
             inf).  When the minimum is attained on a whole interval (parallel motion) it
             is one of the attaining candidate times.
 
-    Method: MATH.md 4, see the module docstring; cost at most one (2D-1) x (2D-1)
+    Method: docs/MATH.md 4, see the module docstring; cost at most one (2D-1) x (2D-1)
     eigenvalue problem per overlapping piece pair (batched), usually far fewer.
     Typical: 10 robots x 240 pieces (30 s at 8 Hz, misaligned clocks) ~0.06 s on one
     CPU core; ~0.45 s when nothing can be pruned (all robots within 2 cm for 30 s).
@@ -299,10 +299,30 @@ def pairwise_min_separation(seg_robot, seg_t0, seg_t1, seg_coeffs, num_robots=No
     if P.size == 0:
         return min_dist, t_min
     pair = r[P] * m + r[Q]
-    # Exact pruning: an upper bound per robot pair (the smallest end-point distance of
-    # its piece pairs) and a lower bound per piece pair (|d(end)| - sum_m>=1 |d_m| in
-    # the normalised time of that end); piece pairs whose lower bound exceeds their
-    # robot pair's upper bound cannot hold the minimum and skip the root finding.
+    live = _prune(t0, t1, c, P, Q, pair, m)
+    P, Q, pair = P[live], Q[live], pair[live]
+    best_d, best_t = _piece_pair_minima(t0, t1, c, P, Q)
+    flat = np.full(m * m, np.inf)
+    np.minimum.at(flat, pair, best_d)
+    hit = best_d == flat[pair]
+    tflat = np.full(m * m, np.nan)
+    tflat[pair[hit]] = best_t[hit]
+    min_dist = np.minimum(flat.reshape(m, m), flat.reshape(m, m).T)
+    tt = tflat.reshape(m, m)
+    t_min = np.where(np.isnan(tt), tt.T, tt)
+    np.fill_diagonal(min_dist, np.inf)
+    np.fill_diagonal(t_min, np.nan)
+    return min_dist, t_min
+
+
+def _prune(t0, t1, c, P, Q, pair, m):
+    """Indices of the piece pairs (P, Q) that can hold their robot pair's minimum.
+
+    Exact pruning: an upper bound per robot pair (the smallest end-point distance of its
+    piece pairs) and a lower bound per piece pair (|d(end)| - sum_m>=1 |d_m| in the
+    normalised time of that end); piece pairs whose lower bound exceeds their robot
+    pair's upper bound cannot hold the minimum and skip the root finding.
+    """
     lb = np.empty(P.size)
     ub_row = np.empty(P.size)
     scale = np.empty(P.size)
@@ -322,8 +342,13 @@ def pairwise_min_separation(seg_robot, seg_t0, seg_t1, seg_coeffs, num_robots=No
     ub = np.full(m * m, np.inf)
     np.minimum.at(ub, pair, ub_row)
     slack = 1e-9 * (1.0 + scale + ub[pair])  # far above the round-off of lb and ub
-    live = np.nonzero(lb <= ub[pair] + slack)[0]
-    P, Q, pair = P[live], Q[live], pair[live]
+    return np.nonzero(lb <= ub[pair] + slack)[0]
+
+
+def _piece_pair_minima(t0, t1, c, P, Q):
+    """(distance (B,) m, time (B,) s) of the exact minimum of each piece pair (P, Q) over
+    its overlap: the best stationary candidate, its distance from the original
+    coefficients."""
     best_d = np.empty(P.size)
     best_t = np.empty(P.size)
     for s in range(0, P.size, _CHUNK):
@@ -341,17 +366,8 @@ def pairwise_min_separation(seg_robot, seg_t0, seg_t1, seg_coeffs, num_robots=No
         xq = _horner(c[q], t - t0[q][:, None])[:, 0]
         best_d[s : s + _CHUNK] = np.sqrt(np.sum((xp - xq) ** 2, axis=-1))
         best_t[s : s + _CHUNK] = t[:, 0]
-    flat = np.full(m * m, np.inf)
-    np.minimum.at(flat, pair, best_d)
-    hit = best_d == flat[pair]
-    tflat = np.full(m * m, np.nan)
-    tflat[pair[hit]] = best_t[hit]
-    min_dist = np.minimum(flat.reshape(m, m), flat.reshape(m, m).T)
-    tt = tflat.reshape(m, m)
-    t_min = np.where(np.isnan(tt), tt.T, tt)
-    np.fill_diagonal(min_dist, np.inf)
-    np.fill_diagonal(t_min, np.nan)
-    return min_dist, t_min
+    return best_d, best_t
+
 
 
 def separation_report(min_dist, radius, rtol=0.0):

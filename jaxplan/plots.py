@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -279,11 +280,47 @@ def _pair_minima(data: RunData):
     return d, tm, False
 
 
+@dataclass(frozen=True)
+class _PairMinima:
+    """Each pair's minimum separation ratio, from :func:`_pair_minima`.
+
+    ratio (M, M): min d_ij / rho_ij (inf on the diagonal and where unknown); t (M, M) s:
+    when; iu, ju (P,): the pairs i < j; pair_min (P,): ratio at the pairs; worst: the index
+    into the pairs of the smallest finite minimum, or None; exact: from the pieces."""
+
+    ratio: np.ndarray
+    t: np.ndarray
+    iu: np.ndarray
+    ju: np.ndarray
+    pair_min: np.ndarray
+    worst: int | None
+    exact: bool
+
+    @property
+    def worst_pair(self):
+        return None if self.worst is None else (int(self.iu[self.worst]), int(self.ju[self.worst]))
+
+    @property
+    def source(self) -> str:
+        return "exact" if self.exact else "sampled"
+
+
+def _pair_ratios(data: RunData, rho) -> _PairMinima:
+    d, tm, exact = _pair_minima(data)
+    with np.errstate(invalid="ignore"):
+        ratio = np.where(np.isfinite(d), d / rho, np.inf)
+    iu, ju = np.triu_indices(data.num_robots, k=1)
+    pair_min = ratio[iu, ju]
+    finite = np.isfinite(pair_min)
+    worst = int(np.argmin(np.where(finite, pair_min, np.inf))) if np.any(finite) else None
+    return _PairMinima(ratio, tm, iu, ju, pair_min, worst, exact)
+
+
 def _plot_separation(data: RunData, out: Path) -> Path:
-    m = data.num_robots
+    """separation.png: the ratio curves over time (left), the per-pair minima (right)."""
     with matplotlib.rc_context(_STYLE):
         fig = _new_figure(FIGSIZE["separation"])
-        if m < 2:
+        if data.num_robots < 2:
             ax = fig.add_subplot()
             ax.text(0.5, 0.5, "a single robot: no pairs to separate", ha="center", va="center",
                     transform=ax.transAxes)
@@ -292,104 +329,106 @@ def _plot_separation(data: RunData, out: Path) -> Path:
         gs = fig.add_gridspec(1, 2, width_ratios=(2.6, 1))
         ax = fig.add_subplot(gs[0])
         axm = fig.add_subplot(gs[1])
-        d, tm, exact = _pair_minima(data)
         rho = data.radius[:, None] + data.radius[None, :]
-        with np.errstate(invalid="ignore"):
-            ratio_min = np.where(np.isfinite(d), d / rho, np.inf)
-        iu, ju = np.triu_indices(m, k=1)
-        pair_min = ratio_min[iu, ju]
-        finite = np.isfinite(pair_min)
-        if not np.any(finite):
-            k = 0
-            worst = None
-        else:
-            k = int(np.argmin(np.where(finite, pair_min, np.inf)))
-            worst = (int(iu[k]), int(ju[k]))
-
-        # curves: every pair (thin, grey) or the envelope over pairs; the worst pair in red
-        def curve(i, j):
-            return np.linalg.norm(data.pos[i] - data.pos[j], axis=1) / rho[i, j]
-
-        top = 0.0
-        if iu.size <= MAX_PAIR_LINES:
-            for i, j in zip(iu, ju, strict=True):
-                c = curve(i, j)
-                top = max(top, float(c.max()))
-                ax.plot(data.t, c, color="0.55", lw=0.8, alpha=0.6)
-            env_label = "other pairs"
-        else:
-            env = np.full(data.t.size, np.inf)
-            for i, j in zip(iu, ju, strict=True):
-                c = curve(i, j)
-                top = max(top, float(c.max()))
-                env = np.minimum(env, c)
-            ax.plot(data.t, env, color="0.35", lw=1.0)
-            env_label = f"min over the {iu.size} pairs"
-        handles = [Line2D([], [], color="0.45", lw=1.0, label=env_label)]
-        ax.axhspan(0, 1, color="tab:red", alpha=0.07, lw=0)
-        ax.axhline(1.0, color="k", ls="--", lw=1.2)
-        handles.append(Line2D([], [], color="k", ls="--", lw=1.2, label="d = ρ (contact)"))
-        src = "exact" if exact else "sampled"
-        if np.any(finite):
-            ms, alpha = (3.5, 1.0) if iu.size <= MAX_PAIR_LINES else (2.0, 0.5)
-            ax.plot(tm[iu, ju][finite], pair_min[finite], ls="", marker="o", ms=ms,
-                    color="0.25", alpha=alpha, zorder=3)
-            handles.append(Line2D([], [], ls="", marker="o", ms=3.5, color="0.25",
-                                  label=f"minimum of each pair ({src})"))
-        if worst is not None:
-            i, j = worst
-            ax.plot(data.t, curve(i, j), color="tab:red", lw=2.0, zorder=4)
-            ax.plot([tm[i, j]], [pair_min[k]], ls="", marker="o", ms=7, mfc="tab:red",
-                    mec="k", zorder=5)
-            handles.append(Line2D([], [], color="tab:red", lw=2.0,
-                                  label=f"worst pair ({i}, {j}): {pair_min[k]:.3f} "
-                                        f"at t = {tm[i, j]:.2f} s"))
-            low = float(pair_min[k])
-        else:
-            low = 1.0
-        ax.set_ylim(0, min(max(top, 1.2) * 1.03, max(3.0, 2.0 * low)))
-        if data.t.size > 1 and data.t[-1] > data.t[0]:
-            ax.set_xlim(data.t[0], data.t[-1])
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("d_ij / ρ_ij  (ρ_ij = r_i + r_j)")
-        ax.legend(handles=handles, loc="upper right", framealpha=0.9)
-        title = "Pairwise separation ratio"
-        v = data.metrics.get("min_separation_ratio")
-        if worst is not None:
-            title += f": min {pair_min[k]:.4f} ({src})"
-        if isinstance(v, int | float) and not isinstance(v, bool):
-            title += f"{',' if worst is not None else ':'} {v:.4f} in metrics.json"
-        c = data.metrics.get("collisions")
-        if isinstance(c, int) and not isinstance(c, bool):
-            title += f", {c} colliding pair{'s' if c != 1 else ''}"
-        ax.set_title(title, loc="left")
-
-        # per-pair minimum ratio matrix
-        mat = np.where(np.isfinite(ratio_min), ratio_min, np.nan)
-        np.fill_diagonal(mat, np.nan)
-        fin = mat[np.isfinite(mat)]
-        vmin = min(0.5, float(fin.min())) if fin.size else 0.5
-        vmax = max(2.0, float(fin.max())) if fin.size else 2.0
-        norm = mcolors.TwoSlopeNorm(vmin=vmin, vcenter=1.0, vmax=vmax)
-        cmap = matplotlib.colormaps["RdBu"].with_extremes(bad="0.92")
-        im = axm.imshow(mat, cmap=cmap, norm=norm, origin="upper")
-        axm.grid(False)
-        if m <= ANNOTATE_MAX:
-            for i, j in zip(*np.nonzero(np.isfinite(mat)), strict=True):
-                axm.text(j, i, f"{mat[i, j]:.2f}", ha="center", va="center", fontsize=7,
-                         color="w" if abs(norm(mat[i, j]) - 0.5) > 0.35 else "k")
-        if worst is not None:
-            i, j = worst
-            for a, b in ((i, j), (j, i)):
-                axm.add_patch(Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, ec="k", lw=2))
-        ticks = np.arange(m) if m <= 20 else np.linspace(0, m - 1, 6).round().astype(int)
-        axm.set_xticks(ticks)
-        axm.set_yticks(ticks)
-        axm.set_xlabel("robot j")
-        axm.set_ylabel("robot i")
-        axm.set_title(f"min d_ij / ρ_ij per pair ({src})", loc="left")
-        fig.colorbar(im, ax=axm, shrink=0.85)
+        pm = _pair_ratios(data, rho)
+        _draw_separation_curves(ax, data, rho, pm)
+        ax.set_title(_separation_title(data, pm), loc="left")
+        _draw_minimum_matrix(fig, axm, data.num_robots, pm)
         return _save_png(fig, out / "separation.png")
+
+
+def _draw_separation_curves(ax, data: RunData, rho, pm: _PairMinima) -> None:
+    """d_ij(t) / rho_ij: every pair (thin, grey) or the envelope over pairs, each pair's
+    minimum, the contact line at 1, the worst pair in red."""
+    iu, ju, pair_min, k = pm.iu, pm.ju, pm.pair_min, pm.worst
+    finite = np.isfinite(pair_min)
+
+    def curve(i, j):
+        return np.linalg.norm(data.pos[i] - data.pos[j], axis=1) / rho[i, j]
+
+    top = 0.0
+    if iu.size <= MAX_PAIR_LINES:
+        for i, j in zip(iu, ju, strict=True):
+            c = curve(i, j)
+            top = max(top, float(c.max()))
+            ax.plot(data.t, c, color="0.55", lw=0.8, alpha=0.6)
+        env_label = "other pairs"
+    else:
+        env = np.full(data.t.size, np.inf)
+        for i, j in zip(iu, ju, strict=True):
+            c = curve(i, j)
+            top = max(top, float(c.max()))
+            env = np.minimum(env, c)
+        ax.plot(data.t, env, color="0.35", lw=1.0)
+        env_label = f"min over the {iu.size} pairs"
+    handles = [Line2D([], [], color="0.45", lw=1.0, label=env_label)]
+    ax.axhspan(0, 1, color="tab:red", alpha=0.07, lw=0)
+    ax.axhline(1.0, color="k", ls="--", lw=1.2)
+    handles.append(Line2D([], [], color="k", ls="--", lw=1.2, label="d = ρ (contact)"))
+    if np.any(finite):
+        ms, alpha = (3.5, 1.0) if iu.size <= MAX_PAIR_LINES else (2.0, 0.5)
+        ax.plot(pm.t[iu, ju][finite], pair_min[finite], ls="", marker="o", ms=ms,
+                color="0.25", alpha=alpha, zorder=3)
+        handles.append(Line2D([], [], ls="", marker="o", ms=3.5, color="0.25",
+                              label=f"minimum of each pair ({pm.source})"))
+    low = 1.0
+    if k is not None:
+        i, j = pm.worst_pair
+        ax.plot(data.t, curve(i, j), color="tab:red", lw=2.0, zorder=4)
+        ax.plot([pm.t[i, j]], [pair_min[k]], ls="", marker="o", ms=7, mfc="tab:red",
+                mec="k", zorder=5)
+        handles.append(Line2D([], [], color="tab:red", lw=2.0,
+                              label=f"worst pair ({i}, {j}): {pair_min[k]:.3f} "
+                                    f"at t = {pm.t[i, j]:.2f} s"))
+        low = float(pair_min[k])
+    ax.set_ylim(0, min(max(top, 1.2) * 1.03, max(3.0, 2.0 * low)))
+    if data.t.size > 1 and data.t[-1] > data.t[0]:
+        ax.set_xlim(data.t[0], data.t[-1])
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("d_ij / ρ_ij  (ρ_ij = r_i + r_j)")
+    ax.legend(handles=handles, loc="upper right", framealpha=0.9)
+
+
+def _separation_title(data: RunData, pm: _PairMinima) -> str:
+    """The curves' title: the minimum found here, metrics.json's, the colliding pairs."""
+    title = "Pairwise separation ratio"
+    v = data.metrics.get("min_separation_ratio")
+    if pm.worst is not None:
+        title += f": min {pm.pair_min[pm.worst]:.4f} ({pm.source})"
+    if isinstance(v, int | float) and not isinstance(v, bool):
+        title += f"{',' if pm.worst is not None else ':'} {v:.4f} in metrics.json"
+    c = data.metrics.get("collisions")
+    if isinstance(c, int) and not isinstance(c, bool):
+        title += f", {c} colliding pair{'s' if c != 1 else ''}"
+    return title
+
+
+def _draw_minimum_matrix(fig, axm, m: int, pm: _PairMinima) -> None:
+    """The M x M matrix of per-pair minimum ratios, the worst pair outlined."""
+    mat = np.where(np.isfinite(pm.ratio), pm.ratio, np.nan)
+    np.fill_diagonal(mat, np.nan)
+    fin = mat[np.isfinite(mat)]
+    vmin = min(0.5, float(fin.min())) if fin.size else 0.5
+    vmax = max(2.0, float(fin.max())) if fin.size else 2.0
+    norm = mcolors.TwoSlopeNorm(vmin=vmin, vcenter=1.0, vmax=vmax)
+    cmap = matplotlib.colormaps["RdBu"].with_extremes(bad="0.92")
+    im = axm.imshow(mat, cmap=cmap, norm=norm, origin="upper")
+    axm.grid(False)
+    if m <= ANNOTATE_MAX:
+        for i, j in zip(*np.nonzero(np.isfinite(mat)), strict=True):
+            axm.text(j, i, f"{mat[i, j]:.2f}", ha="center", va="center", fontsize=7,
+                     color="w" if abs(norm(mat[i, j]) - 0.5) > 0.35 else "k")
+    if pm.worst is not None:
+        i, j = pm.worst_pair
+        for a, b in ((i, j), (j, i)):
+            axm.add_patch(Rectangle((b - 0.5, a - 0.5), 1, 1, fill=False, ec="k", lw=2))
+    ticks = np.arange(m) if m <= 20 else np.linspace(0, m - 1, 6).round().astype(int)
+    axm.set_xticks(ticks)
+    axm.set_yticks(ticks)
+    axm.set_xlabel("robot j")
+    axm.set_ylabel("robot i")
+    axm.set_title(f"min d_ij / ρ_ij per pair ({pm.source})", loc="left")
+    fig.colorbar(im, ax=axm, shrink=0.85)
 
 
 # --------------------------------------------------------------------------- animation

@@ -78,7 +78,7 @@ import numpy as np
 from jaxplan import scenarios
 from jaxplan.config import Config, ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.costs import Weights
-from jaxplan.experiment import compute_metrics, fleet_params, structures, task_of
+from jaxplan.experiment import compute_metrics, fleet_params, stack_trees, structures, task_of
 from jaxplan.fileio import append_lines, atomic_write_text
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
 from jaxplan.scenarios import Scenario
@@ -329,10 +329,6 @@ def _pad_robots(fp, task: Task, m_pad: int):
     return fp, task
 
 
-def _stack(items):
-    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *items)
-
-
 def _batch_program(fp, task, structure: RolloutStructure, shards: int = 1):
     def runs(fp, task):
         final, records = rollout_batch(fp, task, structure, fp_axis=0)
@@ -535,8 +531,8 @@ def _run_group(config: Config, shape_key, points: list[SweepPoint], built, batch
     for i in range(0, len(preps), batch):
         chunk = preps[i:i + batch]
         full = chunk + [chunk[-1]] * (batch - len(chunk))
-        fpb = _stack([c.fp for c in full])
-        taskb = _stack([c.task for c in full])
+        fpb = stack_trees([c.fp for c in full])
+        taskb = stack_trees([c.task for c in full])
         if compiled is None:
             compiled = _compile_batch(fpb, taskb, structure, batch, (m_pad, n_dim, n_wp),
                                       tally, say)

@@ -109,7 +109,7 @@ def c_reference(plans, n_periods, names=NAMES, start=START, physics_hz=HZ_P, con
     M = len(names)
     m = sm.fleet_model(names, start, timestep=1.0 / physics_hz, visual=False)
     d = mujoco.MjData(m)
-    params = se3.fleet_params(names)
+    params = se3.controller_params(names)
     zero = jnp.zeros(M)
 
     @jax.jit

@@ -258,7 +258,7 @@ def test_hover_exact(name):
 
 def test_heterogeneous_vmap_matches_single():
     names = ["neo11", "hummingbird", "firefly", "hummingbird"]
-    fp = se3.fleet_params(names)
+    fp = se3.controller_params(names)
     rng = np.random.default_rng(3)
     cases = [_random_case(rng) for _ in names]
     states = jax.tree.map(lambda *x: jnp.stack([jnp.asarray(y) for y in x]), *[c[0] for c in cases])
@@ -359,7 +359,7 @@ def test_motor_lag(name):
 
 
 def test_params_shapes_and_units():
-    fp = se3.fleet_params(list(VEHICLES))
+    fp = se3.controller_params(list(VEHICLES))
     assert fp.allocation.shape == (3, 4, 6) and fp.allocation_pinv.shape == (3, 6, 4)
     assert fp.k_x.shape == (3, 3) and fp.mass.shape == (3,)
     assert fp.mass.dtype == jnp.float64

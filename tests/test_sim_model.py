@@ -140,7 +140,7 @@ def _closed_loop(names, start, setpoint, yaw, seconds=10.0, physics_hz=500, cont
     """
     m = sm.fleet_model(names, start, yaws=yaw, timestep=1.0 / physics_hz)
     d = mujoco.MjData(m)
-    params = se3.fleet_params(names)
+    params = se3.controller_params(names)
     ref = se3.make_reference(jnp.asarray(setpoint), yaw=jnp.asarray(yaw))
     ctrl_fn = jax.jit(lambda qp, qv: se3.fleet_control(params, sm.fleet_state(qp, qv), ref))
     sub = physics_hz // control_hz
@@ -189,7 +189,7 @@ def test_mjx_closed_loop_matches_c_engine():
 
     m = sm.fleet_model(NAMES, start, yaws=yaw, timestep=0.002)
     mx, dx = sm.to_mjx(m)
-    params = se3.fleet_params(NAMES)
+    params = se3.controller_params(NAMES)
     ref = se3.make_reference(jnp.asarray(setpoint), yaw=jnp.asarray(yaw))
 
     def control_period(dx, _):

@@ -1,4 +1,5 @@
-"""Small shared helpers for the benchmarks: timing with medians, machine facts, JSON."""
+"""Small shared helpers for the benchmarks: timing with medians (:func:`jaxplan.timing.timed`),
+machine facts, JSON written atomically (:mod:`jaxplan.fileio`)."""
 
 from __future__ import annotations
 
@@ -6,10 +7,11 @@ import json
 import os
 import platform
 import statistics
-import time
-from pathlib import Path
 
 import jax
+
+from jaxplan.fileio import atomic_write_text
+from jaxplan.timing import timed
 
 
 def block(x):
@@ -19,12 +21,7 @@ def block(x):
 
 def time_calls(fn, repeats: int) -> list[float]:
     """Wall-clock seconds of ``repeats`` calls of fn() (results blocked on)."""
-    out = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        block(fn())
-        out.append(time.perf_counter() - t0)
-    return out
+    return [timed(fn)[1] for _ in range(repeats)]
 
 
 def median(xs) -> float:
@@ -45,9 +42,5 @@ def machine() -> dict:
 
 
 def write_json(path, data: dict) -> None:
-    """Write ``data`` as JSON atomically (temp file + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True, default=float) + "\n")
-    os.replace(tmp, path)
+    """Write ``data`` as JSON atomically."""
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True, default=float) + "\n")

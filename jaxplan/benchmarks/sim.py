@@ -3,7 +3,7 @@
     jaxplan bench sim [--json FILE]
     .venv/bin/python -m jaxplan.benchmarks.sim [--json FILE] [--quick]
 
-The full closed loop (the issue's target: >= 5x real time for one 10-vehicle world):
+The full closed loop (the target: >= 5x real time for one 10-vehicle world):
 
 * ``closed_loop_rtf``: simulated seconds per wall second of ``jaxplan run`` on the
   antipodal_10 benchmark fleet (10 Fireflys and Neos, 8 m antipodal transits) under the
@@ -50,6 +50,7 @@ import numpy as np
 import jaxplan  # noqa: F401  (x64)
 from jaxplan.sim import fleet
 from jaxplan.sim import model as sim_model_lib
+from jaxplan.timing import timed
 from jaxplan.trajectory import Trajectory
 from jaxplan.vehicles import GRAVITY, get_vehicle
 
@@ -70,7 +71,7 @@ def _fleet_setup(M: int, world: int = 0):
     return p0, Trajectory.from_normalized(jnp.asarray(c), jnp.full(M, T))
 
 
-def _timed(fn, reps):
+def _median_wall_cpu(fn, reps):
     """Median wall and CPU seconds of fn() (which blocks) over reps calls."""
     wall, cpu = [], []
     for _ in range(reps):
@@ -81,17 +82,10 @@ def _timed(fn, reps):
     return float(np.median(wall)), float(np.median(cpu))
 
 
-def _bench_layout(layout: str, sim_seconds: float, reps: int, worlds: int) -> dict:
-    M = len(NAMES)
-    p0, plans = _fleet_setup(M)
-    sim, st0 = fleet.init_sim(NAMES, p0, layout=layout)
+def _bench_host_loop(sim, st0, plans, sim_seconds: float, reps: int) -> dict:
+    """One world, one jitted call of simulate_period per period from Python."""
     n_periods = int(round(sim_seconds / PERIOD_S))
-    out = {}
-
-    # One world, one jitted call per period (host loop).
-    t = time.perf_counter()
-    jax.block_until_ready(fleet.simulate_period(sim, st0, plans, 0.0, PERIOD_S))
-    out["compile_s_period"] = time.perf_counter() - t
+    _, compile_s = timed(fleet.simulate_period, sim, st0, plans, 0.0, PERIOD_S)
 
     def host_loop():
         st = st0
@@ -99,12 +93,17 @@ def _bench_layout(layout: str, sim_seconds: float, reps: int, worlds: int) -> di
             st, rec = fleet.simulate_period(sim, st, plans, k * PERIOD_S, PERIOD_S)
         jax.block_until_ready(st)
 
-    wall, cpu = _timed(host_loop, reps)
-    out["physics_control_rtf"] = sim_seconds / wall
-    out["physics_control_rtf_cpu"] = sim_seconds / cpu
-    out["physics_control_ms_per_period"] = 1e3 * wall / n_periods
+    wall, cpu = _median_wall_cpu(host_loop, reps)
+    return {"compile_s_period": compile_s,
+            "physics_control_rtf": sim_seconds / wall,
+            "physics_control_rtf_cpu": sim_seconds / cpu,
+            "physics_control_ms_per_period": 1e3 * wall / n_periods}
 
-    # One world, all periods in one jitted scan.
+
+def _bench_scan(sim, st0, plans, sim_seconds: float, reps: int) -> dict:
+    """One world, all periods in one jitted lax.scan."""
+    n_periods = int(round(sim_seconds / PERIOD_S))
+
     @jax.jit
     def scan_loop(st):
         def body(st, k):
@@ -112,17 +111,18 @@ def _bench_layout(layout: str, sim_seconds: float, reps: int, worlds: int) -> di
             return st, rec.track_err.max()
         return jax.lax.scan(body, st, jnp.arange(n_periods))
 
-    t = time.perf_counter()
-    jax.block_until_ready(scan_loop(st0))
-    out["compile_s_scan"] = time.perf_counter() - t
-    wall, cpu = _timed(lambda: jax.block_until_ready(scan_loop(st0)), reps)
-    out["physics_control_rtf_in_scan"] = sim_seconds / wall
-    out["physics_control_rtf_in_scan_cpu"] = sim_seconds / cpu
+    _, compile_s = timed(scan_loop, st0)
+    wall, cpu = _median_wall_cpu(lambda: jax.block_until_ready(scan_loop(st0)), reps)
+    return {"compile_s_scan": compile_s,
+            "physics_control_rtf_in_scan": sim_seconds / wall,
+            "physics_control_rtf_in_scan_cpu": sim_seconds / cpu}
 
-    # Physics only (constant hover controls), one world.
+
+def _bench_physics_only(sim, st0, sim_seconds: float, reps: int) -> dict:
+    """The layout's physics step alone (constant hover controls), one world."""
     n_steps = int(round(sim_seconds * sim.physics_hz))
     thrust = jnp.asarray([get_vehicle(n).mass * GRAVITY for n in NAMES])
-    moments = jnp.zeros((M, 3))
+    moments = jnp.zeros((len(NAMES), 3))
 
     @jax.jit
     def physics_only(data):
@@ -130,37 +130,48 @@ def _bench_layout(layout: str, sim_seconds: float, reps: int, worlds: int) -> di
                             data, length=n_steps)[0]
 
     jax.block_until_ready(physics_only(st0.data))
-    wall, _ = _timed(lambda: jax.block_until_ready(physics_only(st0.data)), reps)
-    out["mjx_physics_only_steps_per_s"] = n_steps / wall
+    wall, _ = _median_wall_cpu(lambda: jax.block_until_ready(physics_only(st0.data)), reps)
+    return {"mjx_physics_only_steps_per_s": n_steps / wall}
 
-    # A batch of worlds (vmap over a leading world axis).
+
+def _bench_worlds(sim, sim_seconds: float, reps: int, worlds: int) -> dict:
+    """A batch of worlds: vmap of simulate_period over a leading world axis."""
+    setups = [_fleet_setup(len(NAMES), w) for w in range(worlds)]
+    P0 = jnp.asarray(np.stack([s[0] for s in setups]))
+    plans_w = jax.tree.map(lambda *x: jnp.stack(x), *[s[1] for s in setups])
+    states = jax.vmap(lambda p: fleet.initial_state(sim, p))(P0)
+
+    @jax.jit
+    def worlds_period(st, t0):
+        return jax.vmap(lambda s, p: fleet.simulate_period(sim, s, p, t0, PERIOD_S))(
+            st, plans_w)
+
+    _, compile_s = timed(worlds_period, states, 0.0)
+    n_w = max(2, int(round(sim_seconds / PERIOD_S)) // 4)
+
+    def worlds_loop():
+        st = states
+        for k in range(n_w):
+            st, _ = worlds_period(st, k * PERIOD_S)
+        jax.block_until_ready(st)
+
+    wall, cpu = _median_wall_cpu(worlds_loop, max(2, reps // 2))
+    steps = n_w * PERIOD_S * sim.physics_hz * worlds
+    return {"compile_s_worlds": compile_s,
+            f"worlds{worlds}_world_steps_per_s": steps / wall,
+            f"worlds{worlds}_world_steps_per_s_cpu": steps / cpu,
+            f"worlds{worlds}_rtf_per_world": n_w * PERIOD_S * worlds / wall}
+
+
+def _bench_layout(layout: str, sim_seconds: float, reps: int, worlds: int) -> dict:
+    """Every figure of one layout ("vmap" or "fleet"); ``worlds`` 0 skips the batch."""
+    p0, plans = _fleet_setup(len(NAMES))
+    sim, st0 = fleet.init_sim(NAMES, p0, layout=layout)
+    out = _bench_host_loop(sim, st0, plans, sim_seconds, reps)
+    out.update(_bench_scan(sim, st0, plans, sim_seconds, reps))
+    out.update(_bench_physics_only(sim, st0, sim_seconds, reps))
     if worlds:
-        setups = [_fleet_setup(M, w) for w in range(worlds)]
-        P0 = jnp.asarray(np.stack([s[0] for s in setups]))
-        plans_w = jax.tree.map(lambda *x: jnp.stack(x), *[s[1] for s in setups])
-        states = jax.vmap(lambda p: fleet.initial_state(sim, p))(P0)
-
-        @jax.jit
-        def worlds_period(st, t0):
-            return jax.vmap(lambda s, p: fleet.simulate_period(sim, s, p, t0, PERIOD_S))(
-                st, plans_w)
-
-        t = time.perf_counter()
-        jax.block_until_ready(worlds_period(states, 0.0))
-        out["compile_s_worlds"] = time.perf_counter() - t
-        n_w = max(2, n_periods // 4)
-
-        def worlds_loop():
-            st = states
-            for k in range(n_w):
-                st, _ = worlds_period(st, k * PERIOD_S)
-            jax.block_until_ready(st)
-
-        wall, cpu = _timed(worlds_loop, max(2, reps // 2))
-        steps = n_w * PERIOD_S * sim.physics_hz * worlds
-        out[f"worlds{worlds}_world_steps_per_s"] = steps / wall
-        out[f"worlds{worlds}_world_steps_per_s_cpu"] = steps / cpu
-        out[f"worlds{worlds}_rtf_per_world"] = n_w * PERIOD_S * worlds / wall
+        out.update(_bench_worlds(sim, sim_seconds, reps, worlds))
     return out
 
 
@@ -177,7 +188,7 @@ def _bench_c(sim_seconds: float, reps: int, worlds: int) -> dict:
         for _ in range(n_steps):
             mujoco.mj_step(m, d)
 
-    wall, _ = _timed(loop, reps)
+    wall, _ = _median_wall_cpu(loop, reps)
     out = {"c_mj_step_steps_per_s": n_steps / wall}
     try:
         from mujoco import rollout
@@ -192,7 +203,7 @@ def _bench_c(sim_seconds: float, reps: int, worlds: int) -> dict:
     ctrls = np.tile(ctrl, (worlds, n_r, 1))
     datas = [mujoco.MjData(m) for _ in range(2)]
     rollout.rollout(m, datas, init, ctrls)  # warm-up
-    wall, _ = _timed(lambda: rollout.rollout(m, datas, init, ctrls), reps)
+    wall, _ = _median_wall_cpu(lambda: rollout.rollout(m, datas, init, ctrls), reps)
     out[f"c_rollout_{worlds}_world_steps_per_s"] = worlds * n_r / wall
     return out
 

@@ -51,8 +51,9 @@ Layouts (``init_sim(layout=...)``):
   CPU shared with other jobs, float64): one world inside a jitted scan of periods costs
   the same CPU time in both layouts (38-39x real time by process time; least-contended
   wall 19x vmap vs 23x fleet, within the machine's noise); 64 worlds: vmap 21k vs fleet
-  14k world-steps/s (CPU time).  vmap also isolates vehicles, and shared/STYLE.md's
-  pitfalls measured it 10x faster at 128 drones.
+  14k world-steps/s (CPU time).  vmap also isolates vehicles, and one MJX model holding
+  many drones slows down faster than their number (reported for 128 drones on a 2-core
+  CPU: 8.7 ms per step as one model, 0.86 ms as a vmap of one world per drone).
 
 Both layouts build their MuJoCo models with :func:`jaxplan.sim.model.fleet_model`
 (``visual=False``: bodies without geoms, exact RotorS inertias) and step with the
@@ -282,7 +283,8 @@ def init_sim(names: Sequence[str], start_positions, *, physics_hz: float = 500.0
         batched = ()
     else:
         mx, batched = _batched_model(names, physics_hz, integrator)
-    sim = SimModel(mjx_model=mx, params=se3.fleet_params(names), names=names, layout=layout,
+    sim = SimModel(mjx_model=mx, params=se3.controller_params(names), names=names,
+                   layout=layout,
                    physics_hz=physics_hz, control_hz=control_hz, motor_lag=bool(motor_lag),
                    jerk_feedforward=bool(jerk_feedforward), batched_leaves=batched)
     yaw = np.zeros(len(names)) if yaws is None else np.asarray(yaws, np.float64)
@@ -394,27 +396,34 @@ def _ticks_in_period(period_s: float, control_hz: float) -> int:
     return max(1, int(math.ceil(n - _EPS_TICKS * max(1.0, n))))
 
 
+def _active_ticks(k0, period_s: float, hz: float, K: int):
+    """Ticks of the period starting at tick k0 (1..K): the absolute period grid ends at
+    the first tick at or after the next multiple of period_s."""
+    ticks_per_period = period_s * hz
+    j = jnp.floor(k0.astype(jnp.float64) / ticks_per_period + _EPS_TICKS)
+    k1 = jnp.ceil((j + 1.0) * ticks_per_period - _EPS_TICKS * max(1.0, ticks_per_period))
+    return jnp.clip(k1.astype(jnp.int64) - k0, 1, K)
+
+
+def _plan_samples(sim: SimModel, plans: Trajectory, t_plan0, K: int):
+    """The scan inputs of a period: (tick index (K,), reference position, velocity,
+    acceleration, jerk (K, M, 3) each; jerk zero without the feed-forward)."""
+    t_plan0 = jnp.broadcast_to(jnp.asarray(t_plan0, jnp.float64), (sim.num_vehicles,))
+    tk = t_plan0[:, None] + (1.0 / sim.control_hz) * jnp.arange(K, dtype=jnp.float64)[None, :]
+    ref_p, ref_v, ref_a = (plans.sample(tk, d) for d in range(3))
+    ref_j = plans.sample(tk, 3) if sim.jerk_feedforward else jnp.zeros_like(ref_p)
+    return (jnp.arange(K), *(jnp.swapaxes(r, 0, 1) for r in (ref_p, ref_v, ref_a, ref_j)))
+
+
 def _simulate_period(sim: SimModel, state: SimState, plans: Trajectory, t_plan0, period_s: float):
     M = sim.num_vehicles
     hz = sim.control_hz
     dt_c = 1.0 / hz
     dt_p = 1.0 / sim.physics_hz
     K = _ticks_in_period(period_s, hz)
-    ticks_per_period = period_s * hz
-
-    # Absolute period grid: end at the first tick at or after the next multiple of period_s.
     k0 = state.tick
-    j = jnp.floor(k0.astype(jnp.float64) / ticks_per_period + _EPS_TICKS)
-    k1 = jnp.ceil((j + 1.0) * ticks_per_period - _EPS_TICKS * max(1.0, ticks_per_period))
-    n_active = jnp.clip(k1.astype(jnp.int64) - k0, 1, K)
-
-    # Plan samples of the whole period at once: (M, K, 3) each.
-    t_plan0 = jnp.broadcast_to(jnp.asarray(t_plan0, jnp.float64), (M,))
-    tk = t_plan0[:, None] + dt_c * jnp.arange(K, dtype=jnp.float64)[None, :]
-    ref_p, ref_v, ref_a = (plans.sample(tk, d) for d in range(3))
-    ref_j = plans.sample(tk, 3) if sim.jerk_feedforward else jnp.zeros_like(ref_p)
-    xs = (jnp.arange(K), *(jnp.swapaxes(r, 0, 1) for r in (ref_p, ref_v, ref_a, ref_j)))
-
+    n_active = _active_ticks(k0, period_s, hz, K)
+    xs = _plan_samples(sim, plans, t_plan0, K)
     params = sim.params
 
     def physics(carry, _):

@@ -1,7 +1,7 @@
 """MJCF for the RotorS fleet, the MuJoCo model, and its MJX copy.
 
 Each vehicle is one free body carrying the vehicle's mass and diagonal inertia
-(:mod:`jaxplan.vehicles`, shared/ROBOTS.md) at its origin, and one site ``actuation``
+(:mod:`jaxplan.vehicles`, docs/ROBOTS.md) at its origin, and one site ``actuation``
 at that origin where four motor actuators act (the mujoco_menagerie crazyflie pattern):
 
     ctrl[4 i + 0]  thrust along body z, N          gear [0 0 1 0 0 0]

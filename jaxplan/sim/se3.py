@@ -2,7 +2,7 @@
 
 The control law is the one in RotorS ``lee_position_controller`` (Lee, Leok and
 McClamroch 2010, "Geometric tracking control of a quadrotor UAV on SE(3)"), written
-in force/torque units with the RotorS gains of :mod:`jaxplan.vehicles` (shared/ROBOTS.md).
+in force/torque units with the RotorS gains of :mod:`jaxplan.vehicles` (docs/ROBOTS.md).
 z is up, gravity is ``-g e3``.  For one vehicle with state (p, v, R, w) and reference
 (p_d, v_d, a_d, j_d, yaw_d, yawrate_d)::
 
@@ -28,7 +28,7 @@ Differences from RotorS, all deliberate:
   moments returned are recomputed from the clamped speeds: that is the wrench the
   vehicle actually gets.
 
-Allocation (ROBOTS.md): rotor ``i`` at azimuth ``th_i`` with spin direction ``d_i``
+Allocation (docs/ROBOTS.md): rotor ``i`` at azimuth ``th_i`` with spin direction ``d_i``
 contributes column ``[l k_f sin th_i, -l k_f cos th_i, -d_i k_f kappa, k_f]`` to the
 (4, R) matrix mapping ``w_i^2`` to (roll, pitch, yaw moment, thrust).  Every vehicle
 is padded to :data:`MAX_ROTORS` = 6 rotors (zero columns, ``rotor_mask`` False), so
@@ -36,7 +36,7 @@ the 4-rotor Hummingbird and the 6-rotor Firefly/Neo stack into one batch and one
 ``jax.vmap`` runs a heterogeneous fleet.  The pseudo-inverse of a padded matrix is
 the pseudo-inverse of the real one padded with zero rows.
 
-Non-finite inputs (DESIGN.md: "caught at the step that makes them").  The controller
+Non-finite inputs (docs/DESIGN.md: "caught at the step that makes them").  The controller
 never returns NaN or inf, and its gradient stays finite too (inputs are replaced
 before any arithmetic, the double-``where`` trick):
 
@@ -50,7 +50,7 @@ before any arithmetic, the double-``where`` trick):
   only output that pushes nowhere, and the status tells the caller to stop the lane.
 
 Everything works on one vehicle; batch with ``jax.vmap`` over params, state and
-reference together (see :func:`fleet_params`).  Units are SI throughout.
+reference together (see :func:`controller_params`).  Units are SI throughout.
 """
 
 from __future__ import annotations
@@ -223,7 +223,7 @@ def se3_params(vehicle: Vehicle | str) -> SE3Params:
     )
 
 
-def fleet_params(vehicles: Sequence[Vehicle | str]) -> SE3Params:
+def controller_params(vehicles: Sequence[Vehicle | str]) -> SE3Params:
     """Stack the parameters of M (possibly different) vehicles along a leading axis.
 
     Returns:
