@@ -3,10 +3,16 @@
 import os
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def jaxplan_cmd(command: str, cfg: Path, out: Path) -> list[str]:
+    """``python -m jaxplan COMMAND CFG --out OUT --quiet`` with this interpreter."""
+    return [sys.executable, "-m", "jaxplan", command, str(cfg), "--out", str(out), "--quiet"]
 
 
 def child_env(cache_dir, **extra) -> dict:

@@ -17,23 +17,18 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests._proc import child_env, kill_when
+from tests._proc import child_env, jaxplan_cmd, kill_when
 from tests.conftest import TINY_TOML
 
 CONTRACT = ("config.toml", "trajectories.npz", "metrics.json")
 FIGURES = ("trajectories_3d.png", "speed_acc.png", "separation.png", "animation.gif")
 TEMP = re.compile(r"^\..+\.tmp(\.mp4)?$")  # the writers' hidden temporary names
-
-
-def _cmd(cfg: Path, out: Path):
-    return [sys.executable, "-m", "jaxplan", "run", str(cfg), "--out", str(out), "--quiet"]
 
 
 @pytest.fixture(scope="module")
@@ -106,17 +101,17 @@ def test_sigkill_mid_write_leaves_whole_files_and_a_rerun_completes(crash_env):
     d, cfg, env = crash_env
     out = d / "run"
     # 1. kill as soon as the run directory has its first entry (config.toml's temp file)
-    _kill_when(_cmd(cfg, out), env, d, lambda: out.is_dir() and any(out.iterdir()))
+    _kill_when(jaxplan_cmd("run", cfg, out), env, d, lambda: out.is_dir() and any(out.iterdir()))
     first = _check_whole(out)
     assert not {f"figures/{f}" for f in FIGURES} <= first, first
     # 2. kill as soon as a new entry appears in figures/ (the first figure being written)
     figs = out / "figures"
     before = _listing(figs)
-    _kill_when(_cmd(cfg, out), env, d, lambda: bool(_listing(figs) - before))
+    _kill_when(jaxplan_cmd("run", cfg, out), env, d, lambda: bool(_listing(figs) - before))
     second = _check_whole(out)
     assert set(CONTRACT) <= second, second
     # 3. the same command again: a complete directory
-    r = subprocess.run(_cmd(cfg, out), env=env, cwd=d, capture_output=True, text=True,
+    r = subprocess.run(jaxplan_cmd("run", cfg, out), env=env, cwd=d, capture_output=True, text=True,
                        timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     final = _check_whole(out)

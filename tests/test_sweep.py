@@ -7,7 +7,6 @@ import csv
 import dataclasses
 import signal
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import numpy as np
 import pytest
 
 from jaxplan.config import parse_config
-from tests._proc import child_env, kill_when
+from tests._proc import child_env, jaxplan_cmd, kill_when
 
 # 2 x 2 weights x 2 seeds on three robots crossing a 2 m sphere (seeded perturbation)
 SWEEP_TOML = """
@@ -175,10 +174,6 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
 # ----------------------------------------------------------------------------- end to end
 
 
-def _sweep_cmd(cfg: Path, out: Path):
-    return [sys.executable, "-m", "jaxplan", "sweep", str(cfg), "--out", str(out), "--quiet"]
-
-
 @pytest.fixture(scope="module")
 def sweep_env(tmp_path_factory):
     d = tmp_path_factory.mktemp("sweep")
@@ -209,8 +204,8 @@ def _data_lines(path: Path) -> int:
 def uninterrupted(sweep_env):
     d, cfg, env = sweep_env
     out = d / "whole"
-    r = subprocess.run(_sweep_cmd(cfg, out), env=env, cwd=d, capture_output=True, text=True,
-                       timeout=900)
+    r = subprocess.run(jaxplan_cmd("sweep", cfg, out), env=env, cwd=d, capture_output=True,
+                       text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     return out, r
 
@@ -235,8 +230,8 @@ def test_rerun_skips_finished_rows(sweep_env, uninterrupted):
     d, cfg, env = sweep_env
     out, _ = uninterrupted
     before = (out / "sweep.csv").read_bytes()
-    r = subprocess.run(_sweep_cmd(cfg, out), env=env, cwd=d, capture_output=True, text=True,
-                       timeout=300)
+    r = subprocess.run(jaxplan_cmd("sweep", cfg, out), env=env, cwd=d, capture_output=True,
+                       text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "compilations: 0" in r.stdout and "8 skipped" in r.stdout
     assert (out / "sweep.csv").read_bytes() == before
@@ -247,13 +242,13 @@ def test_sigkill_then_resume_gives_the_same_rows(sweep_env, uninterrupted):
     whole, _ = uninterrupted
     out = d / "killed"
     csv_path = out / "sweep.csv"
-    proc = kill_when(_sweep_cmd(cfg, out), env, d, lambda: _data_lines(csv_path) > 0,
+    proc = kill_when(jaxplan_cmd("sweep", cfg, out), env, d, lambda: _data_lines(csv_path) > 0,
                      timeout=600, poll=0.02, what="no batch finished in time")
     assert proc.returncode == -signal.SIGKILL
     n_killed = _data_lines(csv_path)
     assert 1 <= n_killed < 8, n_killed  # killed mid-sweep: the batch in flight was lost
-    r = subprocess.run(_sweep_cmd(cfg, out), env=env, cwd=d, capture_output=True, text=True,
-                       timeout=900)
+    r = subprocess.run(jaxplan_cmd("sweep", cfg, out), env=env, cwd=d, capture_output=True,
+                       text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "compilations: 1" in r.stdout
     assert f"{n_killed} skipped" in r.stdout
