@@ -14,6 +14,8 @@ from PIL import Image
 import jaxplan  # noqa: F401
 from jaxplan import media, plots
 from jaxplan.metrics import sample_pieces
+from jaxplan.plots.animation import animate, frame_times
+from jaxplan.plots.run import _pair_minima
 from jaxplan.results import load_run
 from jaxplan.sweep_csv import best_setting
 
@@ -140,8 +142,8 @@ def test_plot_run_without_animation_and_pieces(tmp_path):
 
 def test_frame_count_is_bounded():
     t = np.linspace(0, 60.0, 6001)
-    assert plots._frame_times(t, 150).size == 150
-    assert plots._frame_times(np.linspace(0, 1.0, 101), 150).size <= 20  # real time
+    assert frame_times(t, 150).size == 150
+    assert frame_times(np.linspace(0, 1.0, 101), 150).size <= 20  # real time
 
 
 def test_limits_from_config_metrics_and_vehicles(tmp_path):
@@ -159,7 +161,7 @@ def test_limits_from_config_metrics_and_vehicles(tmp_path):
 
 def test_exact_pair_minima_from_pieces(tmp_path):
     d = load_run(make_run(tmp_path / "r"))
-    dist, _, exact = plots._pair_minima(d)
+    dist, _, exact = _pair_minima(d)
     assert exact
     assert dist[0, 1] == pytest.approx(0.7, abs=1e-9)
 
@@ -289,7 +291,7 @@ def test_mp4_falls_back_to_gif_without_ffmpeg(tmp_path, monkeypatch):
     monkeypatch.setattr(media.shutil, "which", lambda name: None)
     run = make_run(tmp_path / "r")
     with pytest.warns(UserWarning, match="ffmpeg not found"):
-        path = plots._animate(load_run(run), run / "figures", mp4=True, max_frames=6)
+        path = animate(load_run(run), run / "figures", mp4=True, max_frames=6)
     assert path.name == "animation.gif"
     check_gif(path, (640, 480))
 
