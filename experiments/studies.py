@@ -139,11 +139,11 @@ def _today() -> str:
 
 
 def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults=None) -> dict:
-    import csv
     import tomllib
 
     from jaxplan.config import parse_config
     from jaxplan.sweep import run_sweep
+    from jaxplan.sweep_csv import read_sweep_csv
 
     doc = tomllib.loads(base.read_text())
     doc.setdefault("planner", {}).update(planner or {})
@@ -153,8 +153,7 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
     cfg = parse_config(doc, source=str(base))
     res = run_sweep(cfg, out, progress=sys.stderr.isatty(), batch_size=batch, figures=False,
                     echo=None)
-    with open(res.csv, newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows, _ = read_sweep_csv(res.csv)
     num = lambda k: [float(r[k]) for r in rows if r[k] not in ("", "nan")]  # noqa: E731
     ms = num("makespan_s")
     return {

@@ -197,7 +197,9 @@ def sweep_points(config: Config) -> list[SweepPoint]:
 # ------------------------------------------------------------------------ sweep.csv
 
 
-def _fmt(x) -> str:
+def _csv_cell(x) -> str:
+    """A value as a sweep.csv cell: 1/0 for booleans, repr for floats, empty for None,
+    NaN and inf."""
     if x is None:
         return ""
     if isinstance(x, (bool, np.bool_)):
@@ -208,8 +210,10 @@ def _fmt(x) -> str:
     return repr(x) if math.isfinite(x) else ""
 
 
-def _row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
-         error: str = "") -> dict:
+def _csv_row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
+             error: str = "") -> dict:
+    """The sweep.csv row of a run from its metrics.json dict (None: the run failed with
+    ``error``)."""
     row = {"q_obs": repr(float(point.q_obs)), "q_lim": repr(float(point.q_lim)),
            "scenario": point.scenario, "seed": str(point.seed)}
     if metrics is None:
@@ -218,24 +222,24 @@ def _row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
     pr = metrics["per_robot"]
     ttg = [r["time_to_goal_s"] for r in pr if r["reached"] and r["time_to_goal_s"] is not None]
     row.update({
-        "success": _fmt(bool(metrics["success"])),
-        "collisions": _fmt(int(metrics["collisions"])),
-        "min_separation_ratio": _fmt(metrics["min_separation_ratio"]),
-        "makespan_s": _fmt(metrics["makespan_s"]),
-        "mean_time_to_goal_s": _fmt(float(np.mean(ttg)) if ttg else None),
-        "reached_frac": _fmt(float(np.mean([r["reached"] for r in pr]))),
-        "waypoints_frac": _fmt(float(np.mean([r["waypoints_reached"] for r in pr]))
+        "success": _csv_cell(bool(metrics["success"])),
+        "collisions": _csv_cell(int(metrics["collisions"])),
+        "min_separation_ratio": _csv_cell(metrics["min_separation_ratio"]),
+        "makespan_s": _csv_cell(metrics["makespan_s"]),
+        "mean_time_to_goal_s": _csv_cell(float(np.mean(ttg)) if ttg else None),
+        "reached_frac": _csv_cell(float(np.mean([r["reached"] for r in pr]))),
+        "waypoints_frac": _csv_cell(float(np.mean([r["waypoints_reached"] for r in pr]))
                                / max(1, n_waypoints)),
-        "peak_speed_ratio": _fmt(metrics["peak_speed_over_limit"]),
-        "converged_frac": _fmt(metrics["solver"].get("converged_frac")),
-        "iterations_median": _fmt(metrics["solver"].get("iterations_median")),
-        "fallbacks_kept_previous": _fmt(int(metrics["fallbacks"]["kept_previous"])),
-        "fallbacks_braking": _fmt(int(metrics["fallbacks"]["braking"])),
-        "fallbacks_best_effort": _fmt(int(metrics["fallbacks"]["best_effort"])),
-        "fallbacks_goal_occupied": _fmt(int(metrics["fallbacks"].get("goal_occupied", 0))),
-        "robots": _fmt(int(metrics["robots"])),
-        "duration_s": _fmt(metrics["duration_s"]),
-        "replans": _fmt(int(metrics["replans"])),
+        "peak_speed_ratio": _csv_cell(metrics["peak_speed_over_limit"]),
+        "converged_frac": _csv_cell(metrics["solver"].get("converged_frac")),
+        "iterations_median": _csv_cell(metrics["solver"].get("iterations_median")),
+        "fallbacks_kept_previous": _csv_cell(int(metrics["fallbacks"]["kept_previous"])),
+        "fallbacks_braking": _csv_cell(int(metrics["fallbacks"]["braking"])),
+        "fallbacks_best_effort": _csv_cell(int(metrics["fallbacks"]["best_effort"])),
+        "fallbacks_goal_occupied": _csv_cell(int(metrics["fallbacks"].get("goal_occupied", 0))),
+        "robots": _csv_cell(int(metrics["robots"])),
+        "duration_s": _csv_cell(metrics["duration_s"]),
+        "replans": _csv_cell(int(metrics["replans"])),
         "error": error,
     })
     return row
@@ -371,12 +375,15 @@ class _CompileCounter:
         return cls.counts.get(key, 0)
 
 
-class _View(NamedTuple):
+class _ReachState(NamedTuple):
+    """What compute_metrics reads of a rollout's final state: reached (.., M, W) and
+    reach_time (.., M, W) s."""
+
     reached: np.ndarray
     reach_time: np.ndarray
 
 
-def _run_metrics(config: Config, prep: _Prepared, records, final: _View, b: int):
+def _run_metrics(config: Config, prep: _Prepared, records, final: _ReachState, b: int):
     """Metrics of lane b (unpadded robots) -> a csv row."""
     M = prep.scenario.num_robots
 
@@ -385,13 +392,13 @@ def _run_metrics(config: Config, prep: _Prepared, records, final: _View, b: int)
         return x[:, :M] if x.ndim >= 2 else x
 
     rec = jax.tree.map(lane, records)
-    fin = _View(final.reached[b, :M], final.reach_time[b, :M])
+    fin = _ReachState(final.reached[b, :M], final.reach_time[b, :M])
     try:
         metrics, _ = compute_metrics(config, prep.scenario, rec, fin, np.empty(0))
     except Exception as e:  # one bad run never stops the sweep
         msg = f"{type(e).__name__}: {e}".replace("\n", " ")[:200]
-        return _row(prep.point, None, error=msg)
-    return _row(prep.point, metrics, prep.scenario.num_waypoints)
+        return _csv_row(prep.point, None, error=msg)
+    return _csv_row(prep.point, metrics, prep.scenario.num_waypoints)
 
 
 def _batch_size(batch_size: int | None) -> int:
@@ -514,7 +521,7 @@ def _run_batch(config: Config, compiled, chunk: list[_Prepared], fpb, taskb,
     """Run one stacked batch; append the rows of its real (unpadded) runs to sweep.csv."""
     (reached, reach_time), records = compiled(fpb, taskb)
     records = jax.tree.map(np.asarray, records)
-    final = _View(np.asarray(reached), np.asarray(reach_time))
+    final = _ReachState(np.asarray(reached), np.asarray(reach_time))
     rows = [_run_metrics(config, chunk[b], records, final, b) for b in range(len(chunk))]
     append_lines(csv_path, csv_text(rows))
 
