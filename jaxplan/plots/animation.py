@@ -78,76 +78,91 @@ def animate(data: RunData, out: Path, *, mp4: bool, max_frames: int) -> Path:
     (orthographic 3-D view, equal aspect): ~5-10 ms per 640 x 480 frame."""
     if int(max_frames) < 2:
         raise ValueError(f"max_frames must be >= 2; got {max_frames}")
-    use_mp4 = False
-    if mp4:
-        if media.ffmpeg_available():
-            use_mp4 = True
-        else:
-            warnings.warn("ffmpeg not found on PATH: writing animation.gif instead of .mp4",
-                          stacklevel=3)
+    use_mp4 = _use_mp4(mp4)
+    cols = np.asarray(robot_colors(data.num_robots))
+    lim = bounds(data)
+    tf = frame_times(data.t, max_frames)
+    with matplotlib.rc_context(STYLE):
+        fig, ax = _static_scene(data, cols, lim)
+        frames = _frames(data, fig, ax, cols, lim, tf)
+        size = fig.canvas.get_width_height()
+        if use_mp4:
+            return media.write_mp4(frames, size, out / "animation.mp4", FRAME_MS)
+        return media.write_gif(frames, out / "animation.gif", FRAME_MS)
+
+
+def _use_mp4(mp4: bool) -> bool:
+    """Whether to write MP4: asked for and ffmpeg on PATH (a warning when it is not)."""
+    if mp4 and not media.ffmpeg_available():
+        warnings.warn("ffmpeg not found on PATH: writing animation.gif instead of .mp4",
+                      stacklevel=4)
+        return False
+    return mp4
+
+
+def _static_scene(data: RunData, cols, lim):
+    """(figure, axes) with what every frame shares: the axes, faint full paths, goals
+    and the title."""
+    m, n = data.num_robots, data.ndim
+    fig = new_figure(FIGSIZE["animation"], dpi=ANIM_DPI, layout=None)
+    fig.subplots_adjust(left=0.02 if n == 3 else 0.12, right=0.98,
+                        bottom=0.08 if n == 3 else 0.11, top=0.92)
+    ax = fig.add_subplot(projection="3d" if n == 3 else None)
+    apply_bounds(ax, lim, n)
+    if n == 3:
+        ax.set_proj_type("ortho")
+        ax.view_init(elev=25, azim=-60)
+    for i in range(m):
+        ax.plot(*data.pos[i].T, color=cols[i], lw=0.8, alpha=0.2)
+        ax.plot(*data.goal[i][:, None], ls="", marker="^", ms=6, color=cols[i], mec="k",
+                mew=0.5, alpha=0.8)
+    fig.text(0.97, 0.95, f"{data.name}: {m} robot{'s' if m != 1 else ''}", fontsize=9,
+             ha="right", va="top")
+    return fig, ax
+
+
+def _frames(data: RunData, fig, ax, cols, lim, tf):
+    """Draw the static scene once, add the animated artists, and return a generator of
+    the frames at times tf, each a fresh (H, W, 4) uint8 RGBA array."""
     from matplotlib.collections import EllipseCollection
     from matplotlib.transforms import IdentityTransform
 
-    m, n = data.num_robots, data.ndim
-    cols = np.asarray(robot_colors(m))
-    lim = bounds(data)
-    tf = frame_times(data.t, max_frames)
+    m = data.num_robots
     pf = _interp(data.t, data.pos, tf)  # (M, F, N)
-    with matplotlib.rc_context(STYLE):
-        fig = new_figure(FIGSIZE["animation"], dpi=ANIM_DPI, layout=None)
-        fig.subplots_adjust(left=0.02 if n == 3 else 0.12, right=0.98,
-                            bottom=0.08 if n == 3 else 0.11, top=0.92)
-        ax = fig.add_subplot(projection="3d" if n == 3 else None)
-        apply_bounds(ax, lim, n)
-        if n == 3:
-            ax.set_proj_type("ortho")
-            ax.view_init(elev=25, azim=-60)
-        for i in range(m):
-            ax.plot(*data.pos[i].T, color=cols[i], lw=0.8, alpha=0.2)
-            ax.plot(*data.goal[i][:, None], ls="", marker="^", ms=6, color=cols[i], mec="k",
-                    mew=0.5, alpha=0.8)
-        fig.text(0.97, 0.95, f"{data.name}: {m} robot{'s' if m != 1 else ''}", fontsize=9,
-                 ha="right", va="top")
-        canvas = fig.canvas
-        canvas.draw()  # fixes the layout and the view: from here on, project once
-        background = canvas.copy_from_bbox(fig.bbox)
-        pix, _ = _to_pixels(ax, data.pos)  # (M, K, 2)
-        fpix, fdepth = _to_pixels(ax, pf)  # (M, F, 2), (M, F)
-        diam = 2.0 * data.radius * _px_per_m(ax, lim)  # (M,) pixels
-        ident = IdentityTransform()
-        trails = LineCollection([], colors=cols, linewidths=1.8, transform=ident,
-                                animated=True)
-        bodies = EllipseCollection(diam, diam, np.zeros(m), units="dots", offsets=fpix[:, 0],
-                                   offset_transform=ident, facecolors=cols, edgecolors="k",
-                                   linewidths=0.5, alpha=0.85, animated=True)
-        for art in (trails, bodies):
-            fig.add_artist(art)
-        label = fig.text(0.03, 0.95, "", fontsize=11, family="monospace", va="top",
-                         animated=True)
-        bbox = ax.get_window_extent()
-        trails.set_clip_box(bbox)
-        bodies.set_clip_box(bbox)
+    canvas = fig.canvas
+    canvas.draw()  # fixes the layout and the view: from here on, project once
+    background = canvas.copy_from_bbox(fig.bbox)
+    pix, _ = _to_pixels(ax, data.pos)  # (M, K, 2)
+    fpix, fdepth = _to_pixels(ax, pf)  # (M, F, 2), (M, F)
+    diam = 2.0 * data.radius * _px_per_m(ax, lim)  # (M,) pixels
+    ident = IdentityTransform()
+    trails = LineCollection([], colors=cols, linewidths=1.8, transform=ident, animated=True)
+    bodies = EllipseCollection(diam, diam, np.zeros(m), units="dots", offsets=fpix[:, 0],
+                               offset_transform=ident, facecolors=cols, edgecolors="k",
+                               linewidths=0.5, alpha=0.85, animated=True)
+    for art in (trails, bodies):
+        fig.add_artist(art)
+    label = fig.text(0.03, 0.95, "", fontsize=11, family="monospace", va="top", animated=True)
+    bbox = ax.get_window_extent()
+    trails.set_clip_box(bbox)
+    bodies.set_clip_box(bbox)
 
-        def frames():
-            """Yield each frame as a fresh (H, W, 4) uint8 RGBA array."""
-            for f, tt in enumerate(tf):
-                hi = int(np.searchsorted(data.t, tt, side="right"))
-                lo = int(np.searchsorted(data.t, tt - TRAIL_S, side="left"))
-                canvas.restore_region(background)
-                trails.set_segments(
-                    [np.concatenate([pix[i, lo:hi], fpix[i, f][None]]) for i in range(m)])
-                order = np.argsort(-fdepth[:, f], kind="stable")  # far to near
-                bodies.set_offsets(fpix[order, f])
-                bodies.set_widths(diam[order])
-                bodies.set_heights(diam[order])
-                bodies.set_facecolor(cols[order])
-                fig.draw_artist(trails)
-                fig.draw_artist(bodies)
-                label.set_text(f"t = {tt:6.2f} s")
-                fig.draw_artist(label)
-                yield np.array(canvas.buffer_rgba(), copy=True)
+    def frames():
+        for f, tt in enumerate(tf):
+            hi = int(np.searchsorted(data.t, tt, side="right"))
+            lo = int(np.searchsorted(data.t, tt - TRAIL_S, side="left"))
+            canvas.restore_region(background)
+            trails.set_segments(
+                [np.concatenate([pix[i, lo:hi], fpix[i, f][None]]) for i in range(m)])
+            order = np.argsort(-fdepth[:, f], kind="stable")  # far to near
+            bodies.set_offsets(fpix[order, f])
+            bodies.set_widths(diam[order])
+            bodies.set_heights(diam[order])
+            bodies.set_facecolor(cols[order])
+            fig.draw_artist(trails)
+            fig.draw_artist(bodies)
+            label.set_text(f"t = {tt:6.2f} s")
+            fig.draw_artist(label)
+            yield np.array(canvas.buffer_rgba(), copy=True)
 
-        size = canvas.get_width_height()
-        if use_mp4:
-            return media.write_mp4(frames(), size, out / "animation.mp4", FRAME_MS)
-        return media.write_gif(frames(), out / "animation.gif", FRAME_MS)
+    return frames()
