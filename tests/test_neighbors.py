@@ -40,18 +40,20 @@ def test_nearest_neighbors_match_brute_force():
     mask[3, 7] = False  # an other that must never be picked
     idx = np.asarray(nearest_neighbors(preds, radius, jnp.asarray(mask), K))
     lo, hi = NEIGHBOR_HORIZON_S
+    host = jax.device_get(preds)  # sliced on the host; one compiled evaluation for all
+    evaluate = jax.jit(lambda tr, t: tr.evaluate(t[:, None]))
     for i in range(M):
-        own = jax.tree.map(lambda u, i=i: u[i, i], preds)
+        own = jax.tree.map(lambda u, i=i: u[i, i], host)
         H = float(np.clip(own.duration, lo, hi))
         t = np.linspace(0, H, NEIGHBOR_SAMPLES)
-        xi = np.asarray(own.evaluate(t[:, None])).reshape(-1, 3)
+        xi = np.asarray(evaluate(own, t)).reshape(-1, 3)
         score = []
         for j in range(M):
             if not mask[i, j]:
                 score.append(np.inf)
                 continue
-            oj = jax.tree.map(lambda u, i=i, j=j: u[i, j], preds)
-            xj = np.asarray(oj.evaluate(t[:, None])).reshape(-1, 3)
+            oj = jax.tree.map(lambda u, i=i, j=j: u[i, j], host)
+            xj = np.asarray(evaluate(oj, t)).reshape(-1, 3)
             score.append(np.min(np.linalg.norm(xj - xi, axis=-1)) - float(radius[i, j]))
         want = np.argsort(score, kind="stable")[:K]
         assert set(idx[i]) == set(want), (i, idx[i], want)
