@@ -17,8 +17,8 @@ import numpy as np
 # predictions).
 import jaxplan  # noqa: F401
 from jaxplan.benchmarks.solver import antipodal, fleet_params, limits, weights
-from jaxplan.costs import NLPStructure
-from jaxplan.solver import STATUS_NAMES, SolverSettings, initial_guess_batch, solve_batch
+from jaxplan.nlp import NLPStructure
+from jaxplan.solve import STATUS_NAMES, SolverSettings, initial_guess_batch, solve_batch
 
 
 def main(argv=None):
@@ -29,11 +29,11 @@ def main(argv=None):
 
     # M robots on a 3 m circle at ~1.5 m height, goals on the opposite side, starting at
     # rest.  Free ends (rest=False, the paper's NLP): with one quintic segment a rest end
-    # has no shape freedom left to swerve around the others (see jaxplan/costs.py).
+    # has no shape freedom left to swerve around the others (see jaxplan/nlp.py).
     pos, goals = antipodal(M, 3.0, np.random.default_rng(0))
     zero = np.zeros_like(pos)
     # NLPParams with a leading batch axis (M,): weights (objective terms) and limits
-    # (v_max, a_max, j_max) as jaxplan.costs.Weights / Limits; robots 0.25 m in radius.
+    # (v_max, a_max, j_max) as jaxplan.nlp.Weights / Limits; robots 0.25 m in radius.
     params = fleet_params(pos, zero, zero, goals, rest=False, radius=0.25,
                           w=weights(k_t=1.0), lim=limits(v_max=2.0))
     structure = NLPStructure()  # static: one quintic segment, collision samples, 3-D

@@ -20,10 +20,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan import metrics as mt
-from jaxplan import solver as slv
+from jaxplan import solve as slv
 from jaxplan.config import Config, build_scenario
-from jaxplan.costs import Limits, NLPStructure, Weights
 from jaxplan.faults import FaultParams, no_faults
+from jaxplan.nlp import Limits, NLPStructure, Weights
 from jaxplan.planner import (
     ACCEPTED,
     BEST_EFFORT,

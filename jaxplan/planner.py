@@ -57,10 +57,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxplan import solver as slv
-from jaxplan.costs import Limits, Multipliers, NLPParams, NLPStructure, Weights
-from jaxplan.predict import _quintic_terms, predict_arrays
-from jaxplan.trajectory import Trajectory, _compose_matrix
+from jaxplan import solve
+from jaxplan.nlp import Limits, Multipliers, NLPParams, NLPStructure, Weights
+from jaxplan.predict import predict_arrays, quintic_terms
+from jaxplan.pytree import tree_where
+from jaxplan.trajectory import Trajectory, compose_matrix
 
 # m: the most a sender's radius grows for an old message.  A silent robot is taken to
 # hold its last known position within this much: with 2 m a robot frozen mid-course
@@ -111,7 +112,7 @@ class FleetParams(NamedTuple):
     invisible to others).  dt: () replan period, s.  t_min: () s, lower bound on T.
     prediction_weight: () time weight w of the closed-form predictions.
     accept_violation: () largest inequality violation (m^2) accepted from a solve that
-    hit its iteration cap.  settings: solver.SolverSettings.
+    hit its iteration cap.  settings: solve.SolverSettings.
     """
 
     weights: Weights
@@ -122,7 +123,7 @@ class FleetParams(NamedTuple):
     t_min: jax.Array
     prediction_weight: jax.Array
     accept_violation: jax.Array
-    settings: slv.SolverSettings
+    settings: solve.SolverSettings
 
 
 class Views(NamedTuple):
@@ -204,14 +205,13 @@ def braking_plan(p, v, a, a_max, structure: PlannerStructure) -> Trajectory:
     N = p.shape[-1]
     ax = lambda x: [x[:, d] for d in range(N)]
     zero = [jnp.zeros_like(Tb)] * N
-    rows = _quintic_terms(ax(p), ax(v), ax(a), ax(target), zero, zero,
+    rows = quintic_terms(ax(p), ax(v), ax(a), ax(target), zero, zero,
                           jnp.ones_like(Tb, bool), Tb)
     c = jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)  # (M, N, 6)
     one = Trajectory.from_normalized(c[:, None], Tb, coast=False)
     ok = jnp.isfinite(Tb) & jnp.all(jnp.isfinite(one.coeffs), axis=(-1, -2, -3))
     hold = Trajectory.hold(p, 5, 1)
-    one = jax.tree.map(lambda u, w: jnp.where(ok.reshape(ok.shape + (1,) * (u.ndim - 1)), u, w),
-                       one, hold)
+    one = tree_where(ok, one, hold)
     return resample(one, structure.nlp.segments, structure.nlp.degree)
 
 
@@ -228,7 +228,7 @@ def resample(traj: Trajectory, segments: int, degree: int) -> Trajectory:
     if segments == 1:
         return Trajectory(c[..., None, :, :], traj.breaks, traj.coast)
     K = degree + 1
-    mats = jnp.stack([_compose_matrix(k / segments, 1.0 / segments, K, c.dtype)
+    mats = jnp.stack([compose_matrix(k / segments, 1.0 / segments, K, c.dtype)
                       for k in range(segments)])  # (S, K, K)
     coeffs = jnp.einsum("smi,...ni->...snm", mats, c)
     return Trajectory.from_normalized(coeffs, traj.duration, traj.coast)
@@ -262,8 +262,7 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     nxt = preds0.evaluate(fp.dt)
     held_p = 0.5 * (views.p + nxt)
     held = Trajectory.hold(held_p, preds.degree, preds.num_segments)
-    preds = jax.tree.map(lambda u, w: jnp.where(
-        fresh.reshape(fresh.shape + (1,) * (u.ndim - 2)), u, w), preds, held)
+    preds = tree_where(fresh, preds, held)
     floor = jnp.where(fresh, 0.0, 0.5 * jnp.linalg.norm(nxt - views.p, axis=-1)
                       + fp.limits.a_max[None, :] * fp.dt**2 / 8)
     floor = jnp.where(jnp.isfinite(floor), floor, 0.0)
@@ -302,34 +301,33 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     # warm starts; cold guesses (20 objective and 5 merit values each) only when some robot
     # has no usable previous plan
     nan_x = jnp.full((nlp.n_x,), jnp.nan)
-    x_warm = jax.vmap(lambda prev, pr: slv.warm_start(prev, fp.dt, pr, nlp, nan_x))(
+    x_warm = jax.vmap(lambda prev, pr: solve.warm_start(prev, fp.dt, pr, nlp, nan_x))(
         ps.plan, params)
     need_cold = ~ps.has_plan | ~jnp.all(jnp.isfinite(x_warm), axis=-1)
     x_cold = jax.lax.cond(
-        jnp.any(need_cold), lambda: jax.vmap(lambda pr: slv.initial_guess(pr, nlp))(params),
+        jnp.any(need_cold), lambda: jax.vmap(lambda pr: solve.initial_guess(pr, nlp))(params),
         lambda: jnp.zeros((M, nlp.n_x)))
     x0 = jnp.where(need_cold[:, None], x_cold, x_warm)
-    mult = jax.tree.map(lambda m: jnp.where(
-        ps.has_plan.reshape((M,) + (1,) * (m.ndim - 1)), m, 0.0), mult_prev)
+    mult = tree_where(ps.has_plan, mult_prev, jax.tree.map(jnp.zeros_like, mult_prev))
     pen = jnp.where(ps.has_plan, ps.penalty, fp.settings.mu0)
     settings = fp.settings
     # x0 is finite (initial_guess is finite for any input): no fallback guess needed
     # a pool of lanes: the replan costs about the sum of the robots' iterations, not M
     # times the largest (a 20-robot random-box run: 6.9 s instead of 22.8 s on 2 cores)
-    pool = structure.solver_pool or slv.default_pool(M, n_others=params.other_mask.shape[-1])
-    sol = slv.solve_lanes(params, x0, nlp, settings, mult, pen, x_fallback=x0, pool=pool)
+    pool = structure.solver_pool or solve.default_pool(M, n_others=params.other_mask.shape[-1])
+    sol = solve.solve_lanes(params, x0, nlp, settings, mult, pen, x_fallback=x0, pool=pool)
 
     finite = jnp.all(jnp.isfinite(sol.traj.coeffs), axis=(-1, -2, -3)) & jnp.all(
         jnp.isfinite(sol.traj.breaks), axis=-1)
-    good_status = (sol.status == slv.CONVERGED) | (
-        (sol.status == slv.MAX_ITERS) & (sol.ineq_violation <= fp.accept_violation))
+    good_status = (sol.status == solve.CONVERGED) | (
+        (sol.status == solve.MAX_ITERS) & (sol.ineq_violation <= fp.accept_violation))
     accepted = finite & good_status & (sol.eq_violation <= 1e-6)
 
     prev = ps.plan.shift(fp.dt)
     prev_ok = ps.has_plan & (prev.duration > 0) & jnp.all(
         jnp.isfinite(prev.coeffs), axis=(-1, -2, -3))
     brake = braking_plan(p, v, a, limits_i.a_max, structure)
-    usable = finite & (sol.eq_violation <= 1e-6) & (sol.status != slv.NON_FINITE)
+    usable = finite & (sol.eq_violation <= 1e-6) & (sol.status != solve.NON_FINITE)
     sel = lambda c, x, y: jax.tree.map(
         lambda u, w: jnp.where(c.reshape(c.shape + (1,) * (u.ndim - c.ndim)), u, w), x, y)
     # not accepted: the least violating of best effort, previous, braking (in that order
@@ -439,7 +437,7 @@ def initial_plan_state(p, structure: PlannerStructure, n_others: int) -> PlanSta
     nlp = structure.nlp
     plan = Trajectory.hold(p, nlp.degree, nlp.segments)
     dummy = _dummy_params(p.shape[-1], Mo)
-    mult = slv.zero_multipliers(dummy, nlp)
+    mult = solve.zero_multipliers(dummy, nlp)
     mult = jax.tree.map(lambda m: jnp.zeros((M,) + m.shape), mult)
     return PlanState(plan, jnp.zeros((M,), bool), mult, jnp.zeros((M,)),
                      jnp.full((M, Mo), -1, jnp.int32))

@@ -234,7 +234,7 @@ def _horizon_terms(q, w, grid_points=GRID_POINTS, newton_steps=NEWTON_STEPS):
 
 
 # ---------------------------------------------------------------------- trajectories
-def _quintic_terms(p0, v0, a0, pf, vf, af, full, T):
+def quintic_terms(p0, v0, a0, pf, vf, af, full, T):
     """Per-axis lists in; per-axis lists of the six normalized-time coefficients out."""
     out = []
     T2 = T * T
@@ -256,7 +256,7 @@ def quintic_coeffs(p0, v0, a0, pf, vf, af, full, T):
     Inputs (..., N) except ``full`` (...,) bool and ``T`` (...,) seconds (> 0).
     """
     args = [_axes(jnp.asarray(x)) for x in (p0, v0, a0, pf, vf, af)]
-    rows = _quintic_terms(*args, jnp.asarray(full), jnp.asarray(T))
+    rows = quintic_terms(*args, jnp.asarray(full), jnp.asarray(T))
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
@@ -290,7 +290,7 @@ def predict_arrays(p0, v0, a0, pf, vf, af, full, w=1.0) -> Trajectory:
     T = _horizon_terms(q, ws)
     ok = finite & (T > 0) & jnp.isfinite(T)
     Ts = jnp.where(ok, T, 1.0)
-    rows = _quintic_terms(p0, v0, a0, pf, vf, af, full, Ts)
+    rows = quintic_terms(p0, v0, a0, pf, vf, af, full, Ts)
     for row in rows:
         for x in row:
             ok = ok & jnp.isfinite(x)

@@ -1,7 +1,7 @@
 """Reference solver: NLopt LD_SLSQP (the paper's solver) on the identical NLP.
 
-Same variables x = (z, log T), objective :func:`jaxplan.costs.objective`, inequality
-constraints :func:`jaxplan.costs.constraints` (as -g <= 0), bound T >= t_min; values
+Same variables x = (z, log T), objective :func:`jaxplan.nlp.objective`, inequality
+constraints :func:`jaxplan.nlp.constraints` (as -g <= 0), bound T >= t_min; values
 and gradients from the same JAX functions (jitted once per structure and number of
 other robots; one jitted call evaluates objective, constraints and both gradients,
 cached per x, so each NLopt callback pair costs one dispatch).  The equality
@@ -22,8 +22,8 @@ import jax.numpy as jnp
 import nlopt
 import numpy as np
 
-from jaxplan import costs
-from jaxplan.costs import NLPParams, NLPStructure
+from jaxplan import nlp
+from jaxplan.nlp import NLPParams, NLPStructure
 
 
 class SLSQPResult(NamedTuple):
@@ -40,9 +40,9 @@ class SLSQPResult(NamedTuple):
 @functools.cache
 def _evaluator(structure: NLPStructure):
     def ev(x, params):
-        f, gf = jax.value_and_grad(costs.objective)(x, params, structure)
+        f, gf = jax.value_and_grad(nlp.objective)(x, params, structure)
         gfun = lambda xx: jnp.concatenate(
-            [jnp.ravel(a) for a in costs.constraints(xx, params, structure)])
+            [jnp.ravel(a) for a in nlp.constraints(xx, params, structure)])
         g = gfun(x)
         J = jax.jacfwd(gfun)(x)
         return f, gf, g, J

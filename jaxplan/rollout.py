@@ -41,6 +41,7 @@ from jaxplan.planner import (
     initial_plan_state,
     replan,
 )
+from jaxplan.pytree import tree_where
 from jaxplan.trajectory import Trajectory
 
 
@@ -187,8 +188,7 @@ def freeze(task: Task, st: RolloutState, plans, structure: RolloutStructure):
     frozen = task.faults.frozen & (st.t >= task.faults.frozen_at)
     nlp = structure.planner.nlp
     hold = Trajectory.hold(st.p, nlp.degree, nlp.segments)
-    plan = jax.tree.map(lambda u, w: jnp.where(
-        frozen.reshape(frozen.shape + (1,) * (u.ndim - 1)), u, w), hold, plans.plan)
+    plan = tree_where(frozen, hold, plans.plan)
     return plans._replace(plan=plan)
 
 

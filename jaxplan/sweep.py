@@ -77,12 +77,12 @@ import numpy as np
 
 from jaxplan import scenarios
 from jaxplan.config import Config, ConfigError, build_scenario, config_to_toml, parse_config
-from jaxplan.costs import Weights
 from jaxplan.experiment import compute_metrics, fleet_params, stack_trees, structures, task_of
 from jaxplan.fileio import append_lines, atomic_write_text
+from jaxplan.nlp import Weights
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
 from jaxplan.scenarios import Scenario
-from jaxplan.solver import shard_lanes
+from jaxplan.solve import shard_lanes
 from jaxplan.sweep_csv import (
     SweepError,
     best_setting,

@@ -268,7 +268,7 @@ def _end_derivative(c, b, d: int):
     return _horner(_deriv_coeffs(c[k], d), s) / h_eff**d
 
 
-def _compose_matrix(alpha, beta, K: int, dtype):
+def compose_matrix(alpha, beta, K: int, dtype):
     """(K, K) matrix A with new_c = A @ old_c for q(s') = p(alpha + beta s')."""
     rows = []
     for m in range(K):
@@ -295,7 +295,7 @@ def _shift_one(c, b, coast, dt):
     hn = new_end - new_start
     alpha = jnp.where(h > 0, (jnp.minimum(new_start, b[1:]) - b[:-1]) / h_eff, 0.0)
     beta = jnp.where(hn > 0, hn / h_eff, 1.0 / h_eff)
-    A = jax.vmap(lambda a, be: _compose_matrix(a, be, K, c.dtype))(alpha, beta)  # (S, K, K)
+    A = jax.vmap(lambda a, be: compose_matrix(a, be, K, c.dtype))(alpha, beta)  # (S, K, K)
     c_new = jnp.einsum("smi,sni->snm", A, c)
     b_new = jnp.maximum(b - dt, 0.0)
     # Past the end: every segment has zero length; the last one carries the hold / coast

@@ -1,4 +1,4 @@
-"""Tests of jaxplan.costs: the NLP's terms, parametrization and structured derivatives."""
+"""Tests of jaxplan.nlp: the NLP's terms, parametrization and structured derivatives."""
 
 import jax
 import jax.numpy as jnp
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import jaxplan  # noqa: F401
-from jaxplan import costs
+from jaxplan import nlp
 from jaxplan.benchmarks.solver import random_problem, weights
-from jaxplan.costs import Multipliers, NLPStructure
+from jaxplan.nlp import Multipliers, NLPStructure
 from jaxplan.predict import quintic_coeffs
 from jaxplan.trajectory import Trajectory
 
@@ -34,10 +34,10 @@ def _problem_and_multipliers(rng, st, rest):
     """A random NLP with 6 others (soft limits on), its end-kind constants and random
     multipliers (collision 0-50, limits 0-5)."""
     p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
-    b = costs.basis(st)
+    b = nlp.basis(st)
     mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))),
                        jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
-    return p, costs.kind_constants(p.rest, st), mult
+    return p, nlp.kind_constants(p.rest, st), mult
 
 
 @pytest.mark.parametrize("st,rest", CASES)
@@ -45,8 +45,8 @@ def test_structured_derivatives_match_autodiff(st, rest):
     rng = np.random.default_rng(0)
     p, kc, mult = _problem_and_multipliers(rng, st, rest)
     x = _x(rng, st, 5.0, 0.05)
-    f = lambda xx: costs.merit(xx, p, st, kc, mult, 30.0)
-    v, g, H = jax.jit(lambda xx: costs.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
+    f = lambda xx: nlp.merit(xx, p, st, kc, mult, 30.0)
+    v, g, H = jax.jit(lambda xx: nlp.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
     vr, gr, Hr = jax.jit(lambda xx: (f(xx), jax.grad(f)(xx), jax.hessian(f)(xx)))(x)
     np.testing.assert_allclose(v, vr, rtol=1e-12)
     np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
@@ -63,15 +63,15 @@ def test_limit_derivatives_match_autodiff_where_the_limits_bind(rest, q_lim):
     st = NLPStructure(collision="barrier+constraint", segments=2, hard_limits=True)
     rng = np.random.default_rng(3)
     p = random_problem(rng, n_others=4, rest=rest, w=weights(q_lim=q_lim))
-    kc = costs.kind_constants(p.rest, st)
-    b = costs.basis(st)
+    kc = nlp.kind_constants(p.rest, st)
+    b = nlp.basis(st)
     mult = Multipliers(jnp.asarray(rng.uniform(0, 5, (st.n_col, 10))),
                        jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
     x = _x(rng, st, 0.8, 0.05)
-    g_lim = costs.constraints(x, p, st).limits
+    g_lim = nlp.constraints(x, p, st).limits
     assert float(jnp.mean(mult.limits - 30.0 * g_lim > 0)) > 0.3  # active AL branch
-    f = lambda xx: costs.merit(xx, p, st, kc, mult, 30.0)
-    v, g, H = jax.jit(lambda xx: costs.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
+    f = lambda xx: nlp.merit(xx, p, st, kc, mult, 30.0)
+    v, g, H = jax.jit(lambda xx: nlp.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
     vr, gr, Hr = jax.jit(lambda xx: (f(xx), jax.grad(f)(xx), jax.hessian(f)(xx)))(x)
     np.testing.assert_allclose(v, vr, rtol=1e-12)
     np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
@@ -88,9 +88,9 @@ def test_merit_shapes_equals_merit_at_each_shape(st, rest, T):
     p, kc, mult = _problem_and_multipliers(rng, st, rest)
     xs = jnp.stack([_x(rng, st, T, sc) for sc in (0.0, 0.05, 0.5, 2.0, 2.0)])
     xs = xs.at[:, -1].set(np.log(T))
-    zs = jax.vmap(lambda x: costs.unpack(x, st)[0])(xs)
-    got = jax.jit(lambda z: costs.merit_shapes(z, jnp.log(T), p, st, kc, mult, 30.0))(zs)
-    ref = jax.jit(jax.vmap(lambda x: costs.merit(x, p, st, kc, mult, 30.0)))(xs)
+    zs = jax.vmap(lambda x: nlp.unpack(x, st)[0])(xs)
+    got = jax.jit(lambda z: nlp.merit_shapes(z, jnp.log(T), p, st, kc, mult, 30.0))(zs)
+    ref = jax.jit(jax.vmap(lambda x: nlp.merit(x, p, st, kc, mult, 30.0)))(xs)
     assert np.all(np.isfinite(ref)) and len(set(np.round(np.asarray(ref), 6))) >= 4
     np.testing.assert_allclose(got, ref, rtol=1e-12)
 
@@ -100,7 +100,7 @@ def test_equalities_hold_by_construction(st, rest):
     rng = np.random.default_rng(1)
     p = random_problem(rng, n_others=3, rest=rest)
     xs = jnp.stack([_x(rng, st, rng.uniform(0.5, 20.0), 3.0) for _ in range(4)])
-    res = jax.jit(jax.vmap(lambda x: costs.equality_residual(x, p, st)))(xs)
+    res = jax.jit(jax.vmap(lambda x: nlp.equality_residual(x, p, st)))(xs)
     assert float(jnp.max(res)) < 1e-9
 
 
@@ -111,7 +111,7 @@ def test_z0_is_closed_form_prediction_and_jerk_is_exact(rest):
     p = random_problem(rng, n_others=2, rest=rest)
     T = 4.3
     x = jnp.zeros(st.n_x).at[-1].set(np.log(T))
-    traj = costs.to_trajectory(x, p, st)
+    traj = nlp.to_trajectory(x, p, st)
     c1 = quintic_coeffs(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, jnp.asarray(T))
     ts = np.linspace(0, T, 41)
     from jaxplan.trajectory import Trajectory
@@ -120,17 +120,17 @@ def test_z0_is_closed_form_prediction_and_jerk_is_exact(rest):
     # analytic smoothness == numerical integral of |jerk|^2 (x with shape freedom)
     x = _x(rng, st, T, 0.5)
     if rest:  # a rest lane's two spare shape variables per axis are inert (cost only)
-        z, tau = costs.unpack(x, st)
-        x = costs.pack(z.at[:, -2:].set(0.0), tau)
-    traj = costs.to_trajectory(x, p, st)
+        z, tau = nlp.unpack(x, st)
+        x = nlp.pack(z.at[:, -2:].set(0.0), tau)
+    traj = nlp.to_trajectory(x, p, st)
     tq, wq = np.polynomial.legendre.leggauss(20)
     num = 0.0
     for k in range(st.segments):
         t = (k + (tq + 1) / 2) * T / st.segments
         j = traj.evaluate(t, 3)
         num += np.sum(wq[:, None] * np.asarray(j) ** 2) / 2 * T / st.segments
-    kc = costs.kind_constants(p.rest, st)
-    ana = costs._smooth_time(x, p._replace(weights=weights(k_t=0.0)), st, kc)
+    kc = nlp.kind_constants(p.rest, st)
+    ana = nlp.smooth_time(x, p._replace(weights=weights(k_t=0.0)), st, kc)
     np.testing.assert_allclose(ana, num, rtol=1e-10)
 
 
@@ -147,7 +147,7 @@ def test_paper_term_is_path_independent():
     p = random_problem(rng, n_others=5, w=weights(q_obs=q_obs, k_p=k_p, q_lim=0.0))
     T = 5.0
     xs = jnp.stack([_x(rng, st, T, 0.1 * i) for i in range(4)])
-    nlp = jax.jit(jax.vmap(lambda x: costs.objective(x, p, st) - costs.objective(x, p, st0)))(xs)
+    via_nlp = jax.jit(jax.vmap(lambda x: nlp.objective(x, p, st) - nlp.objective(x, p, st0)))(xs)
     t = np.linspace(0.0, T, 40001)
     sw = np.ones_like(t)
     sw[1:-1:2], sw[2:-1:2] = 4.0, 2.0
@@ -158,7 +158,7 @@ def test_paper_term_is_path_independent():
     mask = np.asarray(p.other_mask)
     dense, ends = [], []
     for x in xs:
-        c, TT = costs.coefficients(x, p, st)
+        c, TT = nlp.coefficients(x, p, st)
         tr = Trajectory.from_normalized(c, TT)
         dx = np.asarray(tr.evaluate(t))[:, None, :] - o
         dv = np.asarray(tr.evaluate(t, 1))[:, None, :] - ov
@@ -169,19 +169,19 @@ def test_paper_term_is_path_independent():
     np.testing.assert_allclose(np.ptp(ends, axis=0), 0.0, atol=1e-9)  # same end points
     assert np.ptp([float(np.max(np.abs(np.asarray(x[:-1])))) for x in xs]) > 0.1  # paths differ
     np.testing.assert_allclose(dense, dense[0], rtol=1e-7)  # path independent
-    np.testing.assert_allclose(np.asarray(nlp), dense, rtol=1e-7)
+    np.testing.assert_allclose(np.asarray(via_nlp), dense, rtol=1e-7)
 
 
 def test_others_hold_or_coast_after_their_end():
     c = np.zeros((2, 1, 3, 6))
     c[:, 0, 0, 1] = 2.0  # x = 2 s (normalized), T = 2 -> 1 m/s
     tr = Trajectory.from_normalized(c, jnp.asarray([2.0, 2.0]), coast=jnp.asarray([False, True]))
-    out = costs._others_derivs(tr, jnp.asarray([True, True]), jnp.asarray([1.0, 3.0]), 1)
+    out = nlp.others_derivs(tr, jnp.asarray([True, True]), jnp.asarray([1.0, 3.0]), 1)
     np.testing.assert_allclose(out[0][1, :, 0], [2.0, 3.0])  # hold vs coast
     np.testing.assert_allclose(out[1][1, :, 0], [0.0, 1.0])
     np.testing.assert_allclose(out[0][0, :, 0], [1.0, 1.0])
     # the derivatives' layout of the same (components first, samples last)
-    jet = costs._jet(costs.prepare_others(tr, jnp.asarray([True, True])), jnp.asarray([1.0, 3.0]),
+    jet = nlp.others_jet(nlp.prepare_others(tr, jnp.asarray([True, True])), jnp.asarray([1.0, 3.0]),
                      1)
     for a, b in zip(jet, out, strict=True):
         np.testing.assert_allclose(np.moveaxis(np.asarray(a), (0, 1, 2), (2, 1, 0)), b)
@@ -199,9 +199,9 @@ def test_others_derivs_match_trajectory_evaluate(So):
     tr = Trajectory.from_normalized(c, jnp.asarray(T), coast=jnp.asarray([False, True] * 2))
     t = np.concatenate([[-0.5, 0.0], np.linspace(0.0, 3.5, 29), T[:1] * np.arange(So + 1) / So])
     mask = jnp.asarray([True, True, True, False])
-    out = costs._others_derivs(tr, mask, jnp.asarray(t), 2)
+    out = nlp.others_derivs(tr, mask, jnp.asarray(t), 2)
     # the structured derivatives read the same from the prepared layout (N, Mo, K)
-    jet = costs._jet(costs.prepare_others(tr, mask), jnp.asarray(t), 2)
+    jet = nlp.others_jet(nlp.prepare_others(tr, mask), jnp.asarray(t), 2)
     for r in range(3):
         ref = np.array(tr.evaluate(jnp.clip(jnp.asarray(t), 0.0, None)[:, None], r))
         ref[:, 3] = 0.0  # masked: ignored (zeros)
@@ -221,15 +221,15 @@ def test_coast_constraints_are_the_flown_coast(rest):
     rng = np.random.default_rng(7)
     p = random_problem(rng, n_others=4, rest=rest)
     x = _x(rng, st, 3.0, 0.3)
-    g = costs.constraints(x, p, st).collision
-    g0 = costs.constraints(x, p, st0).collision
+    g = nlp.constraints(x, p, st).collision
+    g0 = nlp.constraints(x, p, st0).collision
     assert g.shape == (st0.n_collision_samples + n, 10)
     np.testing.assert_array_equal(g[: st0.n_collision_samples], g0)
     if rest:
         np.testing.assert_array_equal(g[-n:], 1.0)
         return
-    traj = costs.to_trajectory(x, p, st)
-    tc = float(costs.coast_time(p.limits))
+    traj = nlp.to_trajectory(x, p, st)
+    tc = float(nlp.coast_time(p.limits))
     lim = p.limits
     assert tc == pytest.approx(lim.v_max / (2 * lim.a_max) + lim.a_max / (2 * lim.j_max))
     t = 3.0 + tc * np.arange(1, n + 1) / n

@@ -82,7 +82,7 @@ def test_predict_one_robot(tmp_path, monkeypatch):
 
 
 def test_solve_batch():
-    from jaxplan.solver import STATUS_NAMES
+    from jaxplan.solve import STATUS_NAMES
 
     ex = load("solve_batch")
     r = ex.main(["--robots", "4"])

@@ -11,7 +11,7 @@ function here has one fixed shape and compiles once:
 * Trajectory.evaluate / shift / to_monomials: 2 x 1,000 random piecewise polynomials
   (zero-length segments, T = 0, times at breaks, before the start, after the end)
   against NumPy references of the documented semantics.
-* solver.solve_batch: 2 x 128 random NLPs (NaN / inf own states and scalars,
+* solve.solve_batch: 2 x 128 random NLPs (NaN / inf own states and scalars,
   coincident robots, a start inside another robot, an occupied goal, huge and tiny
   scales, garbage x0 / multipliers / penalty).
 * planner.replan: 2 x 32 corrupted fleets chained over two replans (NaN / inf own
@@ -40,8 +40,8 @@ from hypothesis.extra import numpy as hnp
 
 import jaxplan  # noqa: F401  (float64)
 from jaxplan import config as C
-from jaxplan import metrics, planner, solver
-from jaxplan.costs import Limits, Multipliers, NLPParams, NLPStructure, Weights
+from jaxplan import metrics, planner, solve
+from jaxplan.nlp import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.predict import predict, predict_arrays
 from jaxplan.trajectory import Trajectory
 from tests.conftest import TINY_TOML
@@ -472,26 +472,26 @@ def _solver_lanes(seed):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_solve_batch_random_nlps(seed):
     P, x0, mult, pen, kind, finite_in, sane_x0 = _solver_lanes(seed)
-    sol = jax.device_get(solver.solve_batch(P, x0, S_NLP, multipliers=mult, penalty=pen))
+    sol = jax.device_get(solve.solve_batch(P, x0, S_NLP, multipliers=mult, penalty=pen))
     assert np.all(np.isfinite(sol.x)), np.nonzero(~np.all(np.isfinite(sol.x), axis=1))
     assert np.all(np.isfinite(sol.traj.coeffs)) and np.all(np.isfinite(sol.traj.breaks))
     _no_nan_leaves(sol, "Solution")
     assert np.all(np.isfinite(sol.multipliers.collision)) and np.all(np.isfinite(sol.penalty))
     s = sol.status
-    assert set(np.unique(s)) <= {solver.CONVERGED, solver.MAX_ITERS, solver.NON_FINITE,
-                                 solver.INFEASIBLE}
+    assert set(np.unique(s)) <= {solve.CONVERGED, solve.MAX_ITERS, solve.NON_FINITE,
+                                 solve.INFEASIBLE}
     # documented status meanings
-    assert np.all(s[~finite_in] == solver.NON_FINITE), "non-finite input must be reported"
-    tol = solver.SolverSettings().tol_feasibility
-    ok = (s == solver.CONVERGED) | (s == solver.MAX_ITERS)
+    assert np.all(s[~finite_in] == solve.NON_FINITE), "non-finite input must be reported"
+    tol = solve.SolverSettings().tol_feasibility
+    ok = (s == solve.CONVERGED) | (s == solve.MAX_ITERS)
     assert np.all(sol.ineq_violation[ok] <= tol)
-    assert np.all(sol.ineq_violation[s == solver.INFEASIBLE] > tol)
+    assert np.all(sol.ineq_violation[s == solve.INFEASIBLE] > tol)
     # every plan (the hold of a NON_FINITE lane included) starts at the robot
     start = np.asarray(Trajectory(*sol.traj).evaluate(0.0))
     p0 = _fin(P.p0)
     assert np.all(np.abs(start - p0) <= 1e-9 * (1.0 + np.abs(p0)) + 1e-12 * np.abs(
         sol.traj.coeffs).max(axis=(1, 2, 3))[:, None])
-    conv = s == solver.CONVERGED
+    conv = s == solve.CONVERGED
     size = np.abs(np.concatenate([P.p0, P.goal_p], axis=1)).max(axis=1)
     assert np.all(sol.eq_violation[conv] <= 1e-8 * (1.0 + size[conv]))
     # on ordinary lanes (from the solver's own initial guess) the solver is still a solver
@@ -603,7 +603,7 @@ def _check_replan(fp, structure, prev, new, info, p, v, a, gp, gv):
              getattr(planner, "BEST_EFFORT", planner.BRAKING)}
     assert set(np.unique(fb)) <= kinds
     own_ok = np.all(np.isfinite(np.stack([p, v, a, gp, gv])), axis=(0, -1))
-    assert np.all(info.status[~own_ok] == solver.NON_FINITE)
+    assert np.all(info.status[~own_ok] == solve.NON_FINITE)
     assert np.all(fb[~own_ok] != planner.ACCEPTED)
     # every plan but a kept one starts at the robot's (sanitized) state
     start = np.asarray(Trajectory(*plan).evaluate(0.0))

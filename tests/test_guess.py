@@ -1,4 +1,4 @@
-"""Tests of jaxplan.solver.initial_guess: the horizon and shape grid, the rest end's
+"""Tests of jaxplan.solve.initial_guess: the horizon and shape grid, the rest end's
 shape and the swerve stage.  Split from test_solver.py so that the two test workers
 share the solver's tests evenly."""
 
@@ -7,26 +7,26 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplan import costs, solver
+from jaxplan import nlp, solve
 from jaxplan.benchmarks.solver import index_params, random_problem, stack_params
-from jaxplan.costs import NLPStructure
+from jaxplan.nlp import NLPStructure
 
 
 @pytest.mark.parametrize("segments", [1, 3])
 def test_rest_shape_is_the_rest_ends_path_in_the_free_parametrization(segments):
-    """solver._rest_shape: z = G e(h) in the free-end parametrization gives exactly the
+    """solve.guess.rest_shape: z = G e(h) in the free-end parametrization gives exactly the
     rest end's minimum-jerk path (the rest kind at z = 0): the same coefficients, and
     the goal's end velocity and acceleration at T."""
     st = NLPStructure(segments=segments)
     p = random_problem(np.random.default_rng(3), n_others=2, rest=False)
     p = p._replace(goal_v=jnp.asarray([0.3, -0.2, 0.1]), goal_a=jnp.asarray([0.0, 0.4, -0.1]))
     tau = jnp.log(4.0)
-    e = costs.boundary_vector(p, jnp.exp(tau) / segments)
-    z = (jnp.asarray(solver._rest_shape(st)) @ e).T
-    c_free, _ = costs.coefficients(costs.pack(z, tau), p, st)
-    c_rest, _ = costs.coefficients(costs.pack(jnp.zeros_like(z), tau), p._replace(rest=True), st)
+    e = nlp.boundary_vector(p, jnp.exp(tau) / segments)
+    z = (jnp.asarray(solve.guess.rest_shape(st)) @ e).T
+    c_free, _ = nlp.coefficients(nlp.pack(z, tau), p, st)
+    c_rest, _ = nlp.coefficients(nlp.pack(jnp.zeros_like(z), tau), p._replace(rest=True), st)
     np.testing.assert_allclose(c_free, c_rest, rtol=0, atol=1e-10)
-    tr = costs.to_trajectory(costs.pack(z, tau), p, st)
+    tr = nlp.to_trajectory(nlp.pack(z, tau), p, st)
     np.testing.assert_allclose(tr.state_at(jnp.asarray(4.0 - 1e-12))[1], p.goal_v, atol=1e-8)
     np.testing.assert_allclose(tr.state_at(jnp.asarray(4.0 - 1e-12))[2], p.goal_a, atol=1e-8)
 
@@ -47,7 +47,7 @@ def test_initial_guess_swerve_is_the_best_of_its_candidates(segments):
     """The swerve stage: the guess is the grid's x or x plus 1.5 rho_max along the
     smoothest shape mode to the right, left, up or down, whichever has the least merit
     (zero multipliers, penalty mu0), by a brute force over the same candidates with
-    costs.merit; on these crossing NLPs some lanes swerve, and a lane whose others are
+    nlp.merit; on these crossing NLPs some lanes swerve, and a lane whose others are
     all masked keeps the grid's x."""
     st = NLPStructure(segments=segments)
     rng = np.random.default_rng(5)
@@ -55,10 +55,10 @@ def test_initial_guess_swerve_is_the_best_of_its_candidates(segments):
           for i in range(24)]
     ps[-1] = ps[-1]._replace(other_mask=jnp.zeros_like(ps[-1].other_mask))
     P = stack_params(ps)
-    grid = np.asarray(jax.jit(jax.vmap(lambda q: solver.initial_guess(q, st, swerve=False)))(P))
-    got = np.asarray(solver.initial_guess_batch(P, st))
-    merit = jax.jit(lambda x, p: costs.merit(x, p, st, costs.kind_constants(p.rest, st),
-                                             solver.zero_multipliers(p, st), 10.0))
+    grid = np.asarray(jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P))
+    got = np.asarray(solve.initial_guess_batch(P, st))
+    merit = jax.jit(lambda x, p: nlp.merit(x, p, st, nlp.kind_constants(p.rest, st),
+                                             solve.zero_multipliers(p, st), 10.0))
     swerved = 0
     for i, p in enumerate(ps):
         x = grid[i]
@@ -89,15 +89,15 @@ def test_initial_guess_head_on_pair_passes_on_the_right():
     pos = np.array([[-3.0, 0.0, 1.5], [3.0, 0.0, 1.5]])
     P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), pos[::-1].copy())
     st = NLPStructure()
-    x0 = np.asarray(solver.initial_guess_batch(P, st))
-    grid = np.asarray(jax.jit(jax.vmap(lambda q: solver.initial_guess(q, st, swerve=False)))(P))
+    x0 = np.asarray(solve.initial_guess_batch(P, st))
+    grid = np.asarray(jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P))
     dz = (x0 - grid)[:, :-1].reshape(2, 3, st.nz)[:, :, 0]  # (robot, axis)
     assert dz[0, 1] < -0.5 and dz[1, 1] > 0.5  # robot 0 flies +x: right is -y; 1: +y
     assert np.allclose(dz[:, [0, 2]], 0.0)
 
     def min_distance(x):
         ts = np.linspace(0.0, float(np.exp(np.max(x[:, -1]))), 400)[:, None]
-        p = [np.asarray(costs.to_trajectory(jnp.asarray(x[i]), index_params(P, i), st)
+        p = [np.asarray(nlp.to_trajectory(jnp.asarray(x[i]), index_params(P, i), st)
                         .evaluate(ts)) for i in range(2)]
         return float(np.min(np.linalg.norm(p[0] - p[1], axis=-1)))
 
@@ -115,33 +115,33 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
 
     st = NLPStructure()
     free = NLPStructure(collision="none")
-    G = solver._rest_shape(st)
+    G = solve.guess.rest_shape(st)
     pos, goals = antipodal(10, 5.0, np.random.default_rng(0))
     for rest in (False, True):
         P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), goals, rest=rest)
-        x0 = np.asarray(jax.jit(jax.vmap(lambda q: solver.initial_guess(q, st, swerve=False)))(P))
+        x0 = np.asarray(jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P))
         for i in range(3):
             p = index_params(P, i)
             pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
             best, arg = np.inf, None
-            for a in solver.GUESS_SHAPES:
-                for f in solver.GUESS_T_FACTORS:
+            for a in solve.GUESS_SHAPES:
+                for f in solve.GUESS_T_FACTORS:
                     T = float(pred.duration) * f
-                    z = 0.0 if rest else a * (G @ np.asarray(costs.boundary_vector(p, T))).T
-                    x = costs.pack(jnp.broadcast_to(z, (3, st.nz)), jnp.log(T))
-                    v = float(costs.objective(x, p, free))
+                    z = 0.0 if rest else a * (G @ np.asarray(nlp.boundary_vector(p, T))).T
+                    x = nlp.pack(jnp.broadcast_to(z, (3, st.nz)), jnp.log(T))
+                    v = float(nlp.objective(x, p, free))
                     if v < best:
                         best, arg = v, (a, T)
-            kc = costs.kind_constants(p.rest, free)
-            got = float(costs._terms(jnp.asarray(x0[i]), p, free, kc, None, 1.0))
+            kc = nlp.kind_constants(p.rest, free)
+            got = float(nlp.evaluate_terms(jnp.asarray(x0[i]), p, free, kc, None, 1.0))
             np.testing.assert_allclose(got, best, rtol=1e-12)
             np.testing.assert_allclose(np.exp(x0[i, -1]), arg[1], rtol=1e-12)
             if rest:
                 assert np.all(x0[i, :-1] == 0.0)
             else:
                 assert arg[0] == 0.5  # the halfway shape wins here
-                Ts = float(pred.duration) * solver.GUESS_T_FACTORS
-                v0 = [float(costs.objective(costs.pack(jnp.zeros((3, st.nz)), jnp.log(T)), p,
+                Ts = float(pred.duration) * solve.GUESS_T_FACTORS
+                v0 = [float(nlp.objective(nlp.pack(jnp.zeros((3, st.nz)), jnp.log(T)), p,
                                             free)) for T in Ts]
                 assert arg[1] < Ts[int(np.argmin(v0))]  # shorter than the free path's T
     # the bisection of the grid finds its minimum: random NLPs (moving starts, rest and
@@ -151,19 +151,19 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
     seg = 2
     st = NLPStructure(segments=seg)
     fr = NLPStructure(collision="none", segments=seg)
-    G = jnp.asarray(solver._rest_shape(st))
+    G = jnp.asarray(solve.guess.rest_shape(st))
 
     def full_and_got(p, x):
         pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
-        Ts = jnp.maximum(pred.duration * jnp.asarray(solver.GUESS_T_FACTORS), p.t_min)
+        Ts = jnp.maximum(pred.duration * jnp.asarray(solve.GUESS_T_FACTORS), p.t_min)
 
         def val(a, T):
-            z = a * jnp.where(p.rest, 0.0, 1.0) * (G @ costs.boundary_vector(p, T / seg)).T
-            return costs.objective(costs.pack(z, jnp.log(T)), p, fr)
+            z = a * jnp.where(p.rest, 0.0, 1.0) * (G @ nlp.boundary_vector(p, T / seg)).T
+            return nlp.objective(nlp.pack(z, jnp.log(T)), p, fr)
         want = jnp.min(jax.vmap(lambda a: jax.vmap(lambda T: val(a, T))(Ts))(
-            jnp.asarray(solver.GUESS_SHAPES)))
-        return want, costs.objective(x, p, fr)
+            jnp.asarray(solve.GUESS_SHAPES)))
+        return want, nlp.objective(x, p, fr)
 
-    x0 = jax.jit(jax.vmap(lambda q: solver.initial_guess(q, st, swerve=False)))(P)
+    x0 = jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P)
     want, got = jax.device_get(jax.jit(jax.vmap(full_and_got))(P, x0))
     np.testing.assert_allclose(got, want, rtol=1e-12)

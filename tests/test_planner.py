@@ -9,7 +9,7 @@ import numpy as np
 
 from jaxplan import experiment as ex
 from jaxplan import metrics as mt
-from jaxplan import solver as slv
+from jaxplan import solve
 from jaxplan.config import build_scenario
 from jaxplan.planner import (
     ACCEPTED,
@@ -88,7 +88,7 @@ def test_forced_solver_failure_keeps_previous_plan(tiny_config):
     # a solve that cannot be evaluated (NaN weight -> NON_FINITE) and no previous plan: braking
     fp_nan = fp._replace(weights=fp.weights._replace(q_dynm=jnp.asarray(jnp.nan)))
     st1, rec1 = f(fp_nan, task, st)
-    assert np.all(np.asarray(rec1.info.status) == slv.NON_FINITE)
+    assert np.all(np.asarray(rec1.info.status) == solve.NON_FINITE)
     assert np.all(np.asarray(rec1.info.fallback) == BRAKING)
     # again: now the previous (braking) plan is kept, exactly, shifted by the period
     st2, rec2 = f(fp_nan, task, st1)
@@ -104,7 +104,7 @@ def test_forced_solver_failure_keeps_previous_plan(tiny_config):
     fp_fail = fp._replace(settings=fp.settings._replace(max_iters=0),
                           accept_violation=jnp.asarray(-1.0))
     st3, rec3 = f(fp_fail, task, st2)
-    assert np.all(np.asarray(rec3.info.status) != slv.CONVERGED)
+    assert np.all(np.asarray(rec3.info.status) != solve.CONVERGED)
     assert np.all(np.asarray(rec3.info.fallback) == BEST_EFFORT)
     kept = st2.plans.plan.shift(fp.dt)
     assert not np.allclose(np.asarray(st3.plans.plan.sample(t)), np.asarray(kept.sample(t)))

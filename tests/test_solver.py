@@ -1,4 +1,4 @@
-"""Tests of jaxplan.solver against the done-when list (and NLopt SLSQP as reference).
+"""Tests of jaxplan.solve against the done-when list (and NLopt SLSQP as reference).
 
 Compile time dominates: every solve_batch call uses a batch of B = 50 and one of a
 few structures, so each structure compiles once for the whole module.
@@ -11,9 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplan import costs, solver
+from jaxplan import nlp, solve
 from jaxplan.benchmarks.solver import index_params, random_problem, stack_params
-from jaxplan.costs import NLPStructure
+from jaxplan.nlp import NLPStructure
 from jaxplan.reference import solve_slsqp
 from jaxplan.trajectory import Trajectory
 
@@ -21,8 +21,8 @@ B = 50
 MODES = ("paper", "barrier", "constraint", "barrier+constraint")
 S2 = {m: NLPStructure(collision=m, segments=2) for m in MODES}
 S1 = NLPStructure(collision="barrier+constraint", segments=1)
-_one = jax.jit(lambda p, x: solver.solve(p, x, S1))
-_warm = jax.jit(lambda tr, p: solver.warm_start(tr, 0.125, p, S1))
+_one = jax.jit(lambda p, x: solve.solve(p, x, S1))
+_warm = jax.jit(lambda tr, p: solve.warm_start(tr, 0.125, p, S1))
 
 
 def _problems(seed, n=B):
@@ -36,8 +36,8 @@ def _random_results(mode):
     ps = _problems(100 + MODES.index(mode))
     P = stack_params(ps)
     st = S2[mode]
-    x0 = solver.initial_guess_batch(P, st)
-    sol = solver.solve_batch(P, x0, st)
+    x0 = solve.initial_guess_batch(P, st)
+    sol = solve.solve_batch(P, x0, st)
     return ps, P, x0, jax.device_get(sol)
 
 
@@ -45,8 +45,8 @@ def _random_results(mode):
 def test_random_nlps_converge_and_satisfy_constraints(mode):
     ps, P, x0, sol = _random_results(mode)
     st = S2[mode]
-    conv = sol.status == solver.CONVERGED
-    assert not np.any(sol.status == solver.NON_FINITE)
+    conv = sol.status == solve.CONVERGED
+    assert not np.any(sol.status == solve.NON_FINITE)
     # >= 99 % over the problems of the modes: at most one failure per mode
     assert np.sum(~conv) <= 1, (mode, sol.status)
     assert np.max(sol.eq_violation) <= 1e-8
@@ -54,14 +54,14 @@ def test_random_nlps_converge_and_satisfy_constraints(mode):
     # the reported objective and violation (formed from the solver's last L_A value and
     # constraints) equal a fresh evaluation at the solution
     x = jnp.asarray(sol.x)
-    obj = jax.vmap(lambda x, p: costs.objective(x, p, st))(x, P)
+    obj = jax.vmap(lambda x, p: nlp.objective(x, p, st))(x, P)
     np.testing.assert_allclose(sol.objective, obj, rtol=1e-9, atol=1e-9)
-    g = jax.vmap(lambda x, p: costs.constraints(x, p, st))(x, P)
+    g = jax.vmap(lambda x, p: nlp.constraints(x, p, st))(x, P)
     viol = np.maximum(np.max(-np.asarray(g.collision), axis=(1, 2), initial=0.0),
                       np.max(-np.asarray(g.limits), axis=(1, 2), initial=0.0))
     np.testing.assert_allclose(sol.ineq_violation, viol, rtol=1e-9, atol=1e-12)
     if st.collision_constraints:
-        g = jax.vmap(lambda x, p: costs.constraints(x, p, st).collision)(jnp.asarray(sol.x), P)
+        g = jax.vmap(lambda x, p: nlp.constraints(x, p, st).collision)(jnp.asarray(sol.x), P)
         rho = (P.radius[:, None] + P.other_radius)[:, None, :]
         d = jnp.sqrt(jnp.maximum(g + rho**2, 0.0))
         short = jnp.where(P.other_mask[:, None, :], rho - d, -1.0)
@@ -75,7 +75,7 @@ def test_objective_no_worse_than_slsqp(mode):
     worse = []
     for i in range(4):
         ref = solve_slsqp(ps[i], np.asarray(x0[i]), st)
-        if ref.converged and ref.ineq_violation <= 1e-7 and sol.status[i] == solver.CONVERGED:
+        if ref.converged and ref.ineq_violation <= 1e-7 and sol.status[i] == solve.CONVERGED:
             gap = (sol.objective[i] - ref.objective) / max(1.0, abs(ref.objective))
             worse.append(gap)
     assert worse, "no pair converged"
@@ -92,16 +92,16 @@ def _s1_batch():
 
 def test_vmapped_batch_equals_single_solves_and_nan_lane():
     ps, P = _s1_batch()
-    x0 = solver.initial_guess_batch(P, S1)
-    sol = jax.device_get(solver.solve_batch(P, x0, S1))
+    x0 = solve.initial_guess_batch(P, S1)
+    sol = jax.device_get(solve.solve_batch(P, x0, S1))
     for i in (0, 1, 2):
         s = jax.device_get(_one(ps[i], x0[i]))
         np.testing.assert_allclose(s.x, sol.x[i], rtol=1e-9, atol=1e-9)
         assert s.status == sol.status[i] and s.iterations == sol.iterations[i]
     # NaN policy: the bad lane is reported, finite, and does not poison the batch
-    assert sol.status[3] == solver.NON_FINITE
+    assert sol.status[3] == solve.NON_FINITE
     assert np.all(np.isfinite(sol.x[3])) and np.all(np.isfinite(sol.traj.coeffs[3]))
-    assert np.mean(sol.status == solver.CONVERGED) >= 0.9
+    assert np.mean(sol.status == solve.CONVERGED) >= 0.9
 
 
 def test_cold_batch_forms_the_initial_guesses_itself():
@@ -109,18 +109,18 @@ def test_cold_batch_forms_the_initial_guesses_itself():
     own program: the results of solving from initial_guess_batch; an x0 whose leading
     axes are not the problems' is refused before anything compiles."""
     ps, P = _s1_batch()
-    x0 = solver.initial_guess_batch(P, S1)
-    ref = jax.device_get(solver.solve_batch(P, x0, S1))
-    cold = jax.device_get(solver.solve_batch(P, None, S1))
+    x0 = solve.initial_guess_batch(P, S1)
+    ref = jax.device_get(solve.solve_batch(P, x0, S1))
+    cold = jax.device_get(solve.solve_batch(P, None, S1))
     np.testing.assert_array_equal(cold.status, ref.status)
     np.testing.assert_array_equal(cold.iterations, ref.iterations)
-    ok = ref.status != solver.NON_FINITE  # the NaN lane reports x0 (None here: its guess)
+    ok = ref.status != solve.NON_FINITE  # the NaN lane reports x0 (None here: its guess)
     np.testing.assert_allclose(cold.x[ok], ref.x[ok], rtol=1e-9, atol=1e-9)
     with pytest.raises(ValueError, match="leading axes"):
-        solver.solve_batch(P, x0[:3], S1)
+        solve.solve_batch(P, x0[:3], S1)
 
 
-BUDGET_LANES = (solver.MAX_ITERS, solver.INFEASIBLE)
+BUDGET_LANES = (solve.MAX_ITERS, solve.INFEASIBLE)
 
 
 def _assert_same_lanes(sol, ref):
@@ -133,7 +133,7 @@ def _assert_same_lanes(sol, ref):
     out = np.isin(ref.status, BUDGET_LANES)
     np.testing.assert_array_equal(np.where(out, -1, sol.status), np.where(out, -1, ref.status))
     assert np.all(np.isin(sol.status[out], BUDGET_LANES))
-    conv = ref.status == solver.CONVERGED
+    conv = ref.status == solve.CONVERGED
     for a, b in zip(jax.tree.leaves(sol), jax.tree.leaves(ref), strict=True):
         assert np.all(np.isfinite(a) | np.isinf(b))
         np.testing.assert_allclose(np.asarray(a)[conv], np.asarray(b)[conv],
@@ -160,16 +160,16 @@ def test_pool_size_does_not_change_results():
     whole budget are compared by iterations and by not converging only
     (_assert_same_lanes); converged lanes by status, iterations and floats."""
     ps, P = _s1_batch()
-    x0 = solver.initial_guess_batch(P, S1)
+    x0 = solve.initial_guess_batch(P, S1)
     x0 = x0.at[5].set(jnp.nan)
-    short = solver.SolverSettings(max_iters=12)
-    ref12 = jax.device_get(solver.solve_batch(P, x0, S1, short, pool=B))
+    short = solve.SolverSettings(max_iters=12)
+    ref12 = jax.device_get(solve.solve_batch(P, x0, S1, short, pool=B))
     assert np.max(ref12.penalty) <= 1e6  # the premise: no lane ill-conditioned yet
-    ref = jax.device_get(solver.solve_batch(P, x0, S1, pool=B))
+    ref = jax.device_get(solve.solve_batch(P, x0, S1, pool=B))
     assert len(set(ref.iterations.tolist())) > 3  # uneven: the pool has work to balance
-    assert np.sum(ref.status == solver.CONVERGED) >= 40
+    assert np.sum(ref.status == solve.CONVERGED) >= 40
     for pool in (1, 7):
-        sol12 = jax.device_get(solver.solve_batch(P, x0, S1, short, pool=pool))
+        sol12 = jax.device_get(solve.solve_batch(P, x0, S1, short, pool=pool))
         for f in ("status", "iterations", "penalty"):
             np.testing.assert_array_equal(getattr(sol12, f), getattr(ref12, f))
         for f in ("x", "traj", "objective", "eq_violation", "ineq_violation", "multipliers"):
@@ -181,29 +181,29 @@ def test_pool_size_does_not_change_results():
         for f in ("kkt_residual", "decrement"):
             np.testing.assert_allclose(getattr(sol12, f), getattr(ref12, f), rtol=1e-6,
                                        atol=1e-9, err_msg=f)
-        _assert_same_lanes(jax.device_get(solver.solve_batch(P, x0, S1, pool=pool)), ref)
+        _assert_same_lanes(jax.device_get(solve.solve_batch(P, x0, S1, pool=pool)), ref)
     one = jax.device_get(_one(ps[5], jnp.full(S1.n_x, jnp.nan)))
     np.testing.assert_allclose(one.x, ref.x[5], rtol=1e-9, atol=1e-9)
-    assert one.iterations == ref.iterations[5] and ref.status[5] == solver.CONVERGED
+    assert one.iterations == ref.iterations[5] and ref.status[5] == solve.CONVERGED
     # a batch of <= LOCKSTEP_MAX lanes starts in lockstep, then hands its stragglers to
     # the slots: the same lanes again
     n = 20
-    assert n <= solver.LOCKSTEP_MAX < B
+    assert n <= solve.LOCKSTEP_MAX < B
     sub = lambda t: jax.tree.map(lambda a: a[:n], t)
-    sol = jax.device_get(solver.solve_batch(sub(P), x0[:n], S1, pool=3))
+    sol = jax.device_get(solve.solve_batch(sub(P), x0[:n], S1, pool=3))
     assert max(sol.iterations) > 2 * np.median(sol.iterations)  # stragglers for the slots
     _assert_same_lanes(sol, sub(ref))
 
 
-_tb_derivs = jax.jit(lambda x, p, st, m, mu: costs.merit_derivs(
-    x, p, st, costs.kind_constants(p.rest, st), m, mu), static_argnums=2)
-_tb_value = jax.jit(lambda x, p, st, m, mu: costs.merit_and_constraints(
-    x, p, st, costs.kind_constants(p.rest, st), m, mu), static_argnums=2)
-_tb_direction = jax.jit(solver._direction)
+_tb_derivs = jax.jit(lambda x, p, st, m, mu: nlp.merit_derivs(
+    x, p, st, nlp.kind_constants(p.rest, st), m, mu), static_argnums=2)
+_tb_value = jax.jit(lambda x, p, st, m, mu: nlp.merit_and_constraints(
+    x, p, st, nlp.kind_constants(p.rest, st), m, mu), static_argnums=2)
+_tb_direction = jax.jit(solve.direction)
 
 
 def test_directions_by_cholesky_where_it_settles_them_else_eigh():
-    """solver._directions gives what _direction (eigh, eigenvalues floored at reg x the
+    """solve.directions gives what _direction (eigh, eigenvalues floored at reg x the
     largest) gives, for positive definite, nearly singular, indefinite and non-finite
     Hessians alike; Cholesky is used only where no eigenvalue would be floored (checked
     against numpy's eigenvalues), the rest goes to eigh."""
@@ -230,11 +230,11 @@ def test_directions_by_cholesky_where_it_settles_them_else_eigh():
     H = jnp.asarray(np.stack(mats))
     g = jnp.asarray(rng.normal(size=(len(mats), n)))
     need = jnp.asarray(rng.uniform(size=len(mats)) < 0.8)
-    d = np.asarray(jax.jit(solver._directions)(H, g, need, reg))
-    ref = np.asarray(jax.jit(jax.vmap(lambda h, gg: solver._direction(h, gg, reg)))(H, g))
+    d = np.asarray(jax.jit(solve.directions)(H, g, need, reg))
+    ref = np.asarray(jax.jit(jax.vmap(lambda h, gg: solve.direction(h, gg, reg)))(H, g))
     assert np.all(np.isfinite(d))
     # the Cholesky test is sufficient: where it passes, no eigenvalue is floored
-    _, well = jax.vmap(solver._newton_cholesky, in_axes=(0, 0, None))(H, g, reg)
+    _, well = jax.vmap(solve.linalg.newton_cholesky, in_axes=(0, 0, None))(H, g, reg)
     well = np.asarray(well)
     w = np.linalg.eigvalsh(np.asarray(H))
     assert np.all(w[well].min(axis=1) >= reg * np.abs(w[well]).max(axis=1))
@@ -251,25 +251,25 @@ def test_directions_by_cholesky_where_it_settles_them_else_eigh():
             np.testing.assert_allclose(d[i], ref[i], rtol=1e-12, atol=0)
     # non-finite lanes never reach it (the step sanitizes H), but it stays finite
     Hb = H.at[0].set(jnp.nan)
-    assert np.all(np.isfinite(np.asarray(solver._directions(Hb, g, need.at[0].set(False), reg))))
+    assert np.all(np.isfinite(np.asarray(solve.directions(Hb, g, need.at[0].set(False), reg))))
 
 
-def _textbook(p, x0, st, s=solver.SolverSettings()):
+def _textbook(p, x0, st, s=solve.SolverSettings()):
     """The AL-SQP loop of solver's module doc written plainly for one NLP: multiplier
     update, derivatives at x, direction and tests, then merit trials (costs'
     value path, not the derivatives') until Armijo holds.  (iterations, converged, x)."""
-    p, _ = solver._sanitize(p)
+    p, _ = solve.types.sanitize(p)
     tau_min = float(np.log(max(float(p.t_min), 1e-6)))
     derivs = lambda x, m, mu: _tb_derivs(x, p, st, m, mu)
     value = lambda x, m, mu: _tb_value(x, p, st, m, mu)
     direction = _tb_direction
     x = jnp.asarray(x0).at[-1].max(tau_min)
-    mult, mu = solver.zero_multipliers(p, st), s.mu0
+    mult, mu = solve.zero_multipliers(p, st), s.mu0
     _, g = value(x, mult, mu)
     viol_ref, pending = np.inf, False
     for it in range(s.max_iters):
         if pending:  # lam <- max(0, lam - mu g) with the old mu; mu grows on a stall
-            viol = float(solver._max_violation(g))
+            viol = float(solve.types.max_violation(g))
             mult = jax.tree.map(lambda l, gg, m0=mu: jnp.maximum(0.0, l - m0 * gg), mult, g)
             if viol > s.tol_feasibility and viol > s.stall_ratio * viol_ref:
                 mu = min(mu * s.mu_growth, s.mu_max)
@@ -284,7 +284,8 @@ def _textbook(p, x0, st, s=solver.SolverSettings()):
         lam_t = jax.tree.map(lambda l, gg, m0=mu: jnp.maximum(0.0, l - m0 * gg), mult, g)
         compl = max(float(jnp.max(lam_t.collision * jnp.abs(g.collision))),
                     float(jnp.max(lam_t.limits * jnp.abs(g.limits))))
-        if (theta <= s.tol_stationarity * scale and solver._max_violation(g) <= s.tol_feasibility
+        if (theta <= s.tol_stationarity * scale
+                and solve.types.max_violation(g) <= s.tol_feasibility
                 and compl <= s.tol_complementarity * scale):
             return it, True, np.asarray(x)
         d = d * min(1.0, s.max_step_tau / max(abs(float(d[-1])), 1e-300),
@@ -297,7 +298,7 @@ def _textbook(p, x0, st, s=solver.SolverSettings()):
             if np.isfinite(ft) and ft <= f + s.armijo * float(gr @ (xt - x)):
                 ok = True
                 break
-            a = float(solver._next_trial(a, g, gt, thr, s.kink_overshoot))
+            a = float(solve.alsqp.next_trial(a, g, gt, thr, s.kink_overshoot))
         if ok:
             x, g = xt, gt
         pending = theta <= s.inner_tol * scale or not ok
@@ -306,47 +307,47 @@ def _textbook(p, x0, st, s=solver.SolverSettings()):
 
 @pytest.mark.parametrize("mode", ["barrier+constraint", "constraint"])
 def test_one_evaluation_steps_take_the_textbook_iterates(mode):
-    """solver._step evaluates each lane once per step (an accepted trial's derivatives
+    """solve.alsqp.step_lanes evaluates each lane once per step (an accepted trial's derivatives
     start the next iteration): its iterates, iteration counts and convergence are those
     of the plain loop, which evaluates derivatives at each iterate and merit values at
     each trial ("constraint": the multipliers and the penalty change on the way)."""
     st = NLPStructure(collision=mode)
     ps = _problems(21, n=4)
-    one = jax.jit(lambda p, x: solver.solve(p, x, st))
+    one = jax.jit(lambda p, x: solve.solve(p, x, st))
     for p in ps:
-        x0 = solver.initial_guess(p, st)
+        x0 = solve.initial_guess(p, st)
         sol = jax.device_get(one(p, x0))
         it, conv, x = _textbook(p, x0, st)
-        assert (int(sol.iterations), bool(sol.status == solver.CONVERGED)) == (it, conv)
+        assert (int(sol.iterations), bool(sol.status == solve.CONVERGED)) == (it, conv)
         np.testing.assert_allclose(sol.x, x, rtol=1e-8, atol=1e-8)
 
 
 def test_default_pool_follows_the_batch_and_its_others():
-    """The automatic pool (measured rule, solver.default_pool): 12 lanes on a CPU for a
+    """The automatic pool (measured rule, solve.default_pool): 12 lanes on a CPU for a
     large batch of NLPs with few others each, 2 otherwise, the whole batch elsewhere;
     never more lanes than the batch has."""
-    L, F = solver.LOCKSTEP_MAX, solver.FEW_OTHERS
-    assert solver.default_pool(640, "cpu", n_others=10) == solver.POOL_CPU_FEW == 12
-    assert solver.default_pool(L + 1, "cpu", n_others=F) == 12
-    assert solver.default_pool(L, "cpu", n_others=10) == solver.POOL_CPU == 2
-    assert solver.default_pool(640, "cpu", n_others=F + 1) == 2
-    assert solver.default_pool(640, "cpu") == 2
-    assert solver.default_pool(1, "cpu", n_others=1) == 1
-    assert solver.default_pool(640, "gpu", n_others=10) == 640
+    L, F = solve.LOCKSTEP_MAX, solve.FEW_OTHERS
+    assert solve.default_pool(640, "cpu", n_others=10) == solve.POOL_CPU_FEW == 12
+    assert solve.default_pool(L + 1, "cpu", n_others=F) == 12
+    assert solve.default_pool(L, "cpu", n_others=10) == solve.POOL_CPU == 2
+    assert solve.default_pool(640, "cpu", n_others=F + 1) == 2
+    assert solve.default_pool(640, "cpu") == 2
+    assert solve.default_pool(1, "cpu", n_others=1) == 1
+    assert solve.default_pool(640, "gpu", n_others=10) == 640
 
 
 def test_changing_weights_does_not_recompile():
     ps, P = _s1_batch()
-    x0 = solver.initial_guess_batch(P, S1)
-    jax.block_until_ready(solver.solve_batch(P, x0, S1))
-    before = solver._solve_batch_jit._cache_size()
+    x0 = solve.initial_guess_batch(P, S1)
+    jax.block_until_ready(solve.solve_batch(P, x0, S1))
+    before = solve.batch._solve_batch_jit._cache_size()
     for q_obs, q_lim in ((3.0, 0.5), (30.0, 2.0)):
         w = P.weights._replace(q_obs=jnp.full(B, q_obs), q_lim=jnp.full(B, q_lim))
-        sol = jax.block_until_ready(solver.solve_batch(P._replace(weights=w), x0, S1))
-        assert np.mean(np.asarray(sol.status) == solver.CONVERGED) >= 0.9
-    settings = solver.SolverSettings(tol_stationarity=1e-9, mu0=5.0)
-    jax.block_until_ready(solver.solve_batch(P, x0, S1, settings))
-    assert solver._solve_batch_jit._cache_size() == before
+        sol = jax.block_until_ready(solve.solve_batch(P._replace(weights=w), x0, S1))
+        assert np.mean(np.asarray(sol.status) == solve.CONVERGED) >= 0.9
+    settings = solve.SolverSettings(tol_stationarity=1e-9, mu0=5.0)
+    jax.block_until_ready(solve.solve_batch(P, x0, S1, settings))
+    assert solve.batch._solve_batch_jit._cache_size() == before
 
 
 def _parked(rest_structure):
@@ -366,17 +367,17 @@ def test_more_segments_let_a_rest_to_rest_plan_swerve():
     P = stack_params([p] * B)
     out = {}
     for st in (S1, S2["barrier+constraint"]):
-        x0 = solver.initial_guess_batch(P, st)
-        sol = jax.device_get(solver.solve_batch(P, x0, st))
+        x0 = solve.initial_guess_batch(P, st)
+        sol = jax.device_get(solve.solve_batch(P, x0, st))
         tr = index_params(sol.traj, 0)
         t = np.linspace(0, float(tr.duration), 2001)
         d = np.linalg.norm(np.asarray(tr.evaluate(t)) - np.array([4.0, 0.1, 1.0]), axis=-1)
         out[st.segments] = (int(sol.status[0]), d.min(), float(sol.eq_violation[0]))
     rho = float(p.radius + p.other_radius[0])
     # one quintic with a rest end: only T is free, the path is the straight line
-    assert out[1][1] < 0.11 and out[1][0] != solver.CONVERGED
+    assert out[1][1] < 0.11 and out[1][0] != solve.CONVERGED
     # two segments: the plan swerves around the parked robot
-    assert out[2][0] == solver.CONVERGED and out[2][1] >= rho - 0.02, out
+    assert out[2][0] == solve.CONVERGED and out[2][1] >= rho - 0.02, out
     assert out[2][2] < 1e-8
 
 
@@ -388,7 +389,7 @@ def test_warm_start_is_finite_for_degenerate_previous_plans():
     for tr in (prev, nan):
         x = _warm(tr, p)
         assert np.all(np.isfinite(x))
-    sol = _one(p, solver.initial_guess(p, S1))
+    sol = _one(p, solve.initial_guess(p, S1))
     x = _warm(sol.traj, p)
     assert (np.all(np.isfinite(x))
             and abs(float(jnp.exp(x[-1]) - (sol.traj.duration - 0.125))) < 1e-9)
@@ -401,18 +402,18 @@ def test_solution_is_differentiable_in_the_weights():
     st = NLPStructure(collision="barrier", segments=2)
     rng = np.random.default_rng(11)
     p = random_problem(rng, n_others=4, rest=False)
-    x0 = solver.initial_guess(p, st)
-    tight = solver.SolverSettings(tol_stationarity=0.0, max_iters=80)
+    x0 = solve.initial_guess(p, st)
+    tight = solve.SolverSettings(tol_stationarity=0.0, max_iters=80)
 
     def out(q_obs, q_lim, x_start):
         w = p.weights._replace(q_obs=q_obs, q_lim=q_lim)
-        s = solver.solve_differentiable(p._replace(weights=w), x_start, st, tight)
+        s = solve.solve_differentiable(p._replace(weights=w), x_start, st, tight)
         return jnp.stack([s.x[-1], s.objective]), s
 
     f = jax.jit(out)
     q = (jnp.asarray(10.0), jnp.asarray(1.0))
     (y, sol) = f(*q, x0)
-    assert sol.status == solver.MAX_ITERS and sol.decrement < 1e-20  # converged to rounding
+    assert sol.status == solve.MAX_ITERS and sol.decrement < 1e-20  # converged to rounding
     jac = jax.jit(jax.jacrev(lambda a, b: out(a, b, sol.x)[0], argnums=(0, 1)))(*q)
     for k, qk in enumerate(q):
         # central differences: truncation ~ (h / q)^2 ~ 1e-7 relative; rounding ~ the
@@ -433,13 +434,13 @@ def test_backtracking_goes_just_past_the_first_al_branch_crossing():
     along the step, the next trial lies kink_overshoot past its crossing; constraints
     already active at x, or still inactive at the trial, do not count; no crossing:
     a / 2; the step shrinks by at least 2 and at most 1000 per trial."""
-    M = costs.Multipliers
+    M = nlp.Multipliers
 
     def nxt(a, gx, ga, lam, mu=10.0, over=1.1):
         gx, ga, lam = (M(jnp.asarray(v, float).reshape(1, -1), jnp.ones((1, 3)))
                        for v in (gx, ga, lam))
         thr = jax.tree.map(lambda v: v / mu, lam)
-        return float(solver._next_trial(a, gx, ga, thr, over))
+        return float(solve.alsqp.next_trial(a, gx, ga, thr, over))
 
     # g(a) = 1 - 4 a crosses 0 at a = 0.25; the other constraint (0.5 -> 0.4) does not
     assert nxt(1.0, [1.0, 0.5], [-3.0, 0.4], [0.0, 0.0]) == pytest.approx(1.1 * 0.25)
@@ -457,12 +458,12 @@ def _load_lane(path):
     z = np.load(path)
     g = lambda k: jnp.asarray(z[k])
     sub = lambda cls, pre: cls(*(g(f"{pre}.{f}") for f in cls._fields))
-    own = {f: g(f"P.{f}") for f in costs.NLPParams._fields
+    own = {f: g(f"P.{f}") for f in nlp.NLPParams._fields
            if f not in ("others", "weights", "limits")}
-    P = costs.NLPParams(**own, others=sub(Trajectory, "P.others"),
-                        weights=sub(costs.Weights, "P.weights"),
-                        limits=sub(costs.Limits, "P.limits"))
-    return P, g("x0"), sub(costs.Multipliers, "m"), g("mu")
+    P = nlp.NLPParams(**own, others=sub(Trajectory, "P.others"),
+                        weights=sub(nlp.Weights, "P.weights"),
+                        limits=sub(nlp.Limits, "P.limits"))
+    return P, g("x0"), sub(nlp.Multipliers, "m"), g("mu")
 
 
 def test_warm_replan_with_a_large_penalty_converges():
@@ -475,8 +476,8 @@ def test_warm_replan_with_a_large_penalty_converges():
 
     P, x0, m, mu = _load_lane(Path(__file__).parent / "data" / "warm_lane_large_penalty.npz")
     assert float(mu) == 1e10 and int(P.other_mask.sum()) == 99
-    sol = jax.device_get(jax.jit(lambda P, x0, m, mu: solver.solve(P, x0, NLPStructure(),
+    sol = jax.device_get(jax.jit(lambda P, x0, m, mu: solve.solve(P, x0, NLPStructure(),
                                                                    multipliers=m, penalty=mu))(
         P, x0, m, mu))
-    assert sol.status == solver.CONVERGED and sol.iterations <= 15, (sol.status, sol.iterations)
+    assert sol.status == solve.CONVERGED and sol.iterations <= 15, (sol.status, sol.iterations)
     assert sol.ineq_violation <= 1e-8 and np.isfinite(sol.objective)

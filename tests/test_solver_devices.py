@@ -1,4 +1,4 @@
-"""Tests of jaxplan.solver on CPU devices and threads: a batch split over devices, and
+"""Tests of jaxplan.solve on CPU devices and threads: a batch split over devices, and
 LAPACK calls that never split their batch (the deadlock they once caused).  Split from
 test_solver.py so that the two test workers share the solver's tests evenly."""
 
@@ -10,46 +10,46 @@ import numpy as np
 import pytest
 
 import jaxplan
-from jaxplan import solver
+from jaxplan import solve
 from tests.test_solver import S1, S2, B, _s1_batch
 
 _SPLIT = """
 import jax, numpy as np
 import jaxplan
-from jaxplan import solver
+from jaxplan import solve
 from jaxplan.benchmarks.solver import random_problem, stack_params
-from jaxplan.costs import NLPStructure
+from jaxplan.nlp import NLPStructure
 assert len(jax.devices("cpu")) == 2
-L = solver.LOCKSTEP_MAX
-assert solver.default_shards(L + 1, "cpu") == 2 and solver.default_shards(L, "cpu") == 1
-assert solver.default_shards(640, "gpu") == 1
+L = solve.LOCKSTEP_MAX
+assert solve.default_shards(L + 1, "cpu") == 2 and solve.default_shards(L, "cpu") == 1
+assert solve.default_shards(640, "gpu") == 1
 rng = np.random.default_rng(7)  # _problems(7): >= 90% converge
 n = 49  # odd: padded for the split, the copy dropped
 P = stack_params([random_problem(rng, n_others=int(rng.integers(2, 11)), rest=bool(i % 2))
                   for i in range(n)])
 st = NLPStructure(collision="barrier+constraint")
-x0 = solver.initial_guess_batch(P, st)
-one = jax.device_get(solver.solve_batch(P, x0, st, shards=1))
-split = jax.device_get(solver.solve_batch(P, x0, st))
+x0 = solve.initial_guess_batch(P, st)
+one = jax.device_get(solve.solve_batch(P, x0, st, shards=1))
+split = jax.device_get(solve.solve_batch(P, x0, st))
 np.testing.assert_array_equal(split.status, one.status)
 np.testing.assert_array_equal(split.iterations, one.iterations)
-conv = one.status == solver.CONVERGED
+conv = one.status == solve.CONVERGED
 assert conv.sum() >= 0.9 * n
 for a, b in zip(jax.tree.leaves(split), jax.tree.leaves(one), strict=True):
     assert np.asarray(a).shape == np.asarray(b).shape
     np.testing.assert_allclose(np.asarray(a)[conv], np.asarray(b)[conv], rtol=1e-9, atol=1e-9)
 try:
-    solver.solve_batch(P, x0, st, shards=3)
+    solve.solve_batch(P, x0, st, shards=3)
     raise SystemExit("shards = 3 accepted")
 except ValueError as e:
     assert "shards = 3" in str(e)
 # a cold start (x0 = None): each device forms its own lanes' guesses in the solve's program
-cold = jax.device_get(solver.solve_batch(P, None, st))
+cold = jax.device_get(solve.solve_batch(P, None, st))
 np.testing.assert_array_equal(cold.iterations, split.iterations)
 np.testing.assert_allclose(cold.x[conv], split.x[conv], rtol=1e-9, atol=1e-9)
 # the lanes are dealt round-robin (device d: lanes d, d + 2, ...) and come back in order
 import jax.numpy as jnp
-deal = jax.jit(lambda a: solver.shard_lanes(
+deal = jax.jit(lambda a: solve.shard_lanes(
     lambda b: (b, jnp.full(b.shape, jax.lax.axis_index("lanes"))), (a,), 2))
 back, dev = jax.device_get(deal(jnp.arange(7.0)))
 np.testing.assert_array_equal(back, np.arange(7.0))
@@ -60,7 +60,7 @@ print("ok")
 
 def test_batch_split_over_cpu_devices_gives_the_one_device_results(tmp_path):
     """solve_batch splits a batch of more than LOCKSTEP_MAX NLPs over the CPU devices
-    (jaxplan makes one per core; solver.default_shards), here in a child process with
+    (jaxplan makes one per core; solve.default_shards), here in a child process with
     JAXPLAN_CPU_DEVICES=2 (the suite's own processes keep one: conftest): every lane
     takes the same iterations and ends with the same status as on one device, and the
     same floats to rounding where it converged; so does a cold start (x0 = None: the
@@ -103,19 +103,19 @@ def _lapack_batches(lowered, kernels=("lapack_dsyevd",)):
 def test_cpu_eigh_calls_never_split_their_batch():
     """jaxlib 0.10's batched LAPACK kernels (eigh; Cholesky alike) split a batch of more
     than one matrix costing batch x 5 n^3 >= 2e5 over XLA's CPU thread pool and block a
-    pool thread while they wait; two such solves at once deadlock (solver._lapack_safe).
+    pool thread while they wait; two such solves at once deadlock (solve.linalg.lapack_safe).
     So every such call the solver compiles for the CPU stays below that, and the chunked
     eigh returns what one batched call returns."""
     # a call of one matrix never splits, whatever its size
-    ok = lambda b, n: b == 1 or b * solver._EIGH_COST * n ** 3 < solver._LAPACK_SPLIT_COST
+    ok = lambda b, n: b == 1 or b * solve.linalg.EIGH_COST * n ** 3 < solve.linalg.LAPACK_SPLIT_COST
     rng = np.random.default_rng(3)
     for n in (7, 19, 37):
-        k = solver.eigh_chunk(n)
+        k = solve.eigh_chunk(n)
         assert ok(k, n) and (k == 1 or not ok(k + 1, n))
-        for batch in (1, k, k + 1, 3 * k + 2, (solver.UNROLL_EIGH + 2) * k - 1):
+        for batch in (1, k, k + 1, 3 * k + 2, (solve.UNROLL_EIGH + 2) * k - 1):
             A = rng.normal(size=(batch, n, n))
             H = A + A.transpose(0, 2, 1)
-            f = jax.jit(jax.vmap(solver._eigh))
+            f = jax.jit(jax.vmap(solve.linalg.eigh_safe))
             sizes = _lapack_batches(f.lower(H))
             assert sizes and all(m == n and ok(b, n) for b, m in sizes), (n, batch, sizes)
             w, V = f(H)
@@ -127,9 +127,10 @@ def test_cpu_eigh_calls_never_split_their_batch():
         _, P = _s1_batch()
         sub = jax.tree.map(lambda a, n=n_lanes: a[:n], P)
         x0 = jnp.zeros((n_lanes, st.n_x))
-        lowered = solver._solve_batch_jit.lower(
-            solver._strong(sub), x0, st, solver._strong(solver.SolverSettings()), None, None,
-            pool=solver.default_pool(n_lanes, n_others=P.other_mask.shape[-1]))
+        lowered = solve.batch._solve_batch_jit.lower(
+            solve.as_strong_dtypes(sub), x0, st, solve.as_strong_dtypes(solve.SolverSettings()),
+            None, None,
+            pool=solve.default_pool(n_lanes, n_others=P.other_mask.shape[-1]))
         sizes = _lapack_batches(lowered)
         assert sizes and all(m == st.n_x and ok(b, m) for b, m in sizes), (st, sizes)
         if n_lanes == 10 and st.segments == 2:  # as one call this batch would split
@@ -142,17 +143,17 @@ def test_cpu_eigh_calls_never_split_their_batch():
 
 def test_nested_vmaps_of_the_solver_never_split_a_lapack_batch():
     """jax.vmap of solve (whose steps vmap over a batch of one lane) is a vmap of a
-    vmap: the outer level must chunk its LAPACK calls as well (solver._lapack_safe's
+    vmap: the outer level must chunk its LAPACK calls as well (solve.linalg.lapack_safe's
     ``per``).  Before, it batched the inner call whole, and a vmapped solve of the
     bench's 640 NLPs hung at 0% CPU.  The chunked nested eigh equals one batched call."""
-    ok = lambda b, n: b == 1 or b * solver._EIGH_COST * n ** 3 < solver._LAPACK_SPLIT_COST
+    ok = lambda b, n: b == 1 or b * solve.linalg.EIGH_COST * n ** 3 < solve.linalg.LAPACK_SPLIT_COST
     rng = np.random.default_rng(4)
     n = 19
-    k = solver.eigh_chunk(n)
-    for shape in ((3 * k + 2, 1), (k + 1, 2), ((solver.UNROLL_EIGH + 2) * k, 3)):
+    k = solve.eigh_chunk(n)
+    for shape in ((3 * k + 2, 1), (k + 1, 2), ((solve.UNROLL_EIGH + 2) * k, 3)):
         A = rng.normal(size=shape + (n, n))
         H = A + np.swapaxes(A, -1, -2)
-        f = jax.jit(jax.vmap(jax.vmap(solver._eigh)))
+        f = jax.jit(jax.vmap(jax.vmap(solve.linalg.eigh_safe)))
         sizes = _lapack_batches(f.lower(H), ("lapack_dsyevd",))
         assert sizes and all(m == n and ok(b, n) for b, m in sizes), (shape, sizes)
         w, V = f(H)
@@ -163,8 +164,8 @@ def test_nested_vmaps_of_the_solver_never_split_a_lapack_batch():
     st = S2["barrier+constraint"]
     _, P = _s1_batch()
     assert not ok(B, st.n_x)
-    lowered = jax.jit(jax.vmap(lambda p, x: solver.solve(p, x, st))).lower(
-        solver._strong(P), jnp.zeros((B, st.n_x)))
+    lowered = jax.jit(jax.vmap(lambda p, x: solve.solve(p, x, st))).lower(
+        solve.as_strong_dtypes(P), jnp.zeros((B, st.n_x)))
     for kernels in (("lapack_dsyevd",), ("lapack_dpotrf", "lapack_dtrsm")):
         sizes = _lapack_batches(lowered, kernels)
         assert sizes and all(m == st.n_x and ok(b, m) for b, m in sizes), (kernels, sizes)
@@ -173,20 +174,20 @@ def test_nested_vmaps_of_the_solver_never_split_a_lapack_batch():
 _THREADS = """
 import threading, numpy as np, jax
 import jaxplan
-from jaxplan import solver
+from jaxplan import solve
 from jaxplan.benchmarks.solver import random_problem, stack_params
-from jaxplan.costs import NLPStructure
+from jaxplan.nlp import NLPStructure
 rng = np.random.default_rng(7)
 P = stack_params([random_problem(rng, n_others=int(rng.integers(2, 11)), rest=bool(i % 2))
                   for i in range(40)])
 st = NLPStructure(collision="barrier+constraint", segments=2)
-x0 = np.asarray(solver.initial_guess_batch(P, st))
+x0 = np.asarray(solve.initial_guess_batch(P, st))
 half = [(jax.tree.map(lambda a: a[i:i + 20], P), x0[i:i + 20]) for i in (0, 20)]
-one = [np.asarray(solver.solve_batch(p, x, st).x) for p, x in half]
+one = [np.asarray(solve.solve_batch(p, x, st).x) for p, x in half]
 for _ in range(3):
     out = [None, None]
     def work(j):
-        out[j] = np.asarray(solver.solve_batch(*half[j], st).x)
+        out[j] = np.asarray(solve.solve_batch(*half[j], st).x)
     ts = [threading.Thread(target=work, args=(j,)) for j in (0, 1)]
     [t.start() for t in ts]
     [t.join() for t in ts]
@@ -197,7 +198,7 @@ print("ok")
 
 def test_two_threads_solving_at_once_do_not_deadlock(tmp_path):
     """Two Python threads each solve a batch of two-segment NLPs at the same time (in a
-    child process, under a time limit): before solver._eigh this hung at 0% CPU in 6
+    child process, under a time limit): before solve.linalg.eigh_safe this hung at 0% CPU in 6
     of 7 tries (the LAPACK batch split above).  Same results as one at a time."""
     import subprocess
     import sys

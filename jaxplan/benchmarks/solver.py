@@ -20,8 +20,8 @@ import numpy as np
 
 import jaxplan  # noqa: F401  (float64)
 from jaxplan import planner as _planner
-from jaxplan import solver
-from jaxplan.costs import Limits, NLPParams, NLPStructure, Weights
+from jaxplan import solve
+from jaxplan.nlp import Limits, NLPParams, NLPStructure, Weights
 from jaxplan.predict import predict_arrays
 from jaxplan.reference import solve_slsqp
 
@@ -158,9 +158,9 @@ def _timed(fn, *args, repeats=5, spread=False):
 
 
 def _cold(P, structure, settings):
-    """A cold solve as timed here: the initial guesses (solver.initial_guess) and the
+    """A cold solve as timed here: the initial guesses (solve.initial_guess) and the
     solve from them, both counted (solve_batch with x0 = None: one compiled program)."""
-    return solver.solve_batch(P, None, structure, settings)
+    return solve.solve_batch(P, None, structure, settings)
 
 
 def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighbors=0):
@@ -174,10 +174,10 @@ def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighb
     compile_s = time.perf_counter() - t0
     sol, cold_ms = _timed(lambda P: _cold(P, structure, settings), P, repeats=repeats)
     # the same guesses, for the SLSQP reference's start (untimed)
-    x0 = jax.block_until_ready(solver.initial_guess_batch(P, structure))
+    x0 = jax.block_until_ready(solve.initial_guess_batch(P, structure))
     cold = dict(P=P, x0=x0, sol=sol)
     warm_ms, warm_conv, warm_iters, warm_cases = [], [], [], []
-    ws = jax.jit(jax.vmap(lambda tr, p: solver.warm_start(tr, DT, p, structure)))
+    ws = jax.jit(jax.vmap(lambda tr, p: solve.warm_start(tr, DT, p, structure)))
     for _ in range(steps):
         tr = sol.traj
         pos, vel, acc = (np.asarray(a) for a in tr.state_at(jnp.full(tr.batch_shape, DT)))
@@ -187,10 +187,10 @@ def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighb
         mult = sol.multipliers._replace(
             collision=_planner.remap_slots(sol.multipliers.collision, idx, idx_new))
         idx = idx_new
-        fn = lambda P, x0, m, mu: solver.solve_batch(P, x0, structure, settings, m, mu)
+        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu)
         sol, ms = _timed(fn, P, x0, mult, sol.penalty, repeats=repeats)
         warm_ms.append(ms)
-        warm_conv.append(float(np.mean(np.asarray(sol.status) == solver.CONVERGED)))
+        warm_conv.append(float(np.mean(np.asarray(sol.status) == solve.CONVERGED)))
         warm_iters.append(int(np.max(sol.iterations)))
         warm_cases.append(dict(P=P, x0=x0, sol=sol))
     return dict(compile_s=compile_s, cold_ms=cold_ms,
@@ -224,7 +224,7 @@ def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool =
     """Run every part of the benchmark (module docstring); print it unless ``echo`` is
     False; return the figures."""
     structure = structure or NLPStructure()
-    settings = solver.SolverSettings()
+    settings = solve.SolverSettings()
     rng = np.random.default_rng(0)
     res = {"structure": structure.__dict__, "backend": jax.default_backend(),
            "xla_flags": __import__("os").environ.get("XLA_FLAGS", "")}

@@ -1,0 +1,414 @@
+"""The augmented Lagrangian's value, gradient and Hessian by structured derivatives
+(the "Derivatives" part of :mod:`jaxplan.nlp`'s doc): what the solver evaluates at each
+step.
+
+:func:`merit_derivs` gives (value, gradient, Hessian[, constraints]) at one point;
+:func:`merit_shapes` the values at several shapes of one horizon; :func:`prepare_others`
+lays out the other robots' predictions once per solve and :func:`others_jet` evaluates
+their derivatives.  Checked against jax.hessian of :func:`jaxplan.nlp.terms.merit` in
+tests/test_costs.py.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan.nlp.basis import basis, boundary_vector, falling, pack, unpack
+from jaxplan.nlp.terms import (
+    al_term,
+    coast_time,
+    collision_rows,
+    has_sampled_collision,
+    paper_collision,
+    sexp,
+)
+from jaxplan.nlp.types import DIST_EPS2, Multipliers
+from jaxplan.trajectory import Trajectory
+
+_E_POW = np.array([0, 1, 2, 0, 1, 2])  # the power of h in each row of boundary_vector
+
+
+def _smooth_time_derivs(x, params, structure, kind):
+    """(value, gradient, Hessian) of :func:`smooth_time` in closed form: with h = T / S
+    and e(h) = E diag(h^k) (boundary_vector), the jerk integral is
+    sum_ij W_ij h^(k_i + k_j - 5) + h^-5 sum q z^2, W = M * (E E^T); each power of h has
+    tau derivatives m h^m and m^2 h^m."""
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    h = T / structure.segments
+    E = jnp.stack([params.p0, params.v0, params.a0, params.goal_p, params.goal_v,
+                   params.goal_a])  # (6, N)
+    m = jnp.asarray(_E_POW[:, None] + _E_POW[None, :] - 5, jnp.float64)
+    hm = jnp.exp(m * jnp.log(h))
+    W = kind.M * (E @ E.T) * hm
+    h5 = jnp.exp(-5.0 * jnp.log(h))
+    qz = kind.q[None, :] * z  # (N, nz)
+    Qz = jnp.sum(qz * z) * h5
+    wd, kt = params.weights.q_dynm, params.weights.k_t
+    v = wd * (jnp.sum(W) + Qz) + kt * T
+    g = jnp.concatenate([jnp.ravel(2.0 * wd * h5 * qz),
+                         (wd * (jnp.sum(W * m) - 5.0 * Qz) + kt * T)[None]])
+    dz = jnp.ravel(jnp.broadcast_to(2.0 * wd * h5 * kind.q[None, :], z.shape))
+    htt = wd * (jnp.sum(W * m * m) + 25.0 * Qz) + kt * T
+    H = jnp.diag(jnp.concatenate([dz, htt[None]]))
+    hzt = jnp.ravel(-10.0 * wd * h5 * qz)
+    H = H.at[:-1, -1].set(hzt).at[-1, :-1].set(hzt)
+    return v, g, H
+
+
+# ---------------------------------------------------------------------- derivatives
+def _value_grad_hessian(f, y, *args):
+    def g_aux(yy):
+        v, g = jax.value_and_grad(f)(yy, *args)
+        return g, (v, g)
+
+    H, (v, g) = jax.jacfwd(g_aux, has_aux=True)(y)
+    return v, g, H
+
+
+def _elementwise_derivs(fn, x):
+    """Elementwise value, first and second derivative of an elementwise function (autodiff)."""
+    one = jnp.ones_like(x)
+    (v, d1), (_, d2) = jax.jvp(lambda y: jax.jvp(fn, (y,), (one,)), (x,), (one,))
+    return v, d1, d2
+
+
+# ---------------------------------------------------------------------- structured derivatives
+class OthersPrep(NamedTuple):
+    """The other robots' predictions in the layout the derivatives read, formed once per
+    solve (:func:`prepare_others`): coefficients of their derivatives 0..2 in seconds,
+    components first and the other robots before the sample axis, non-finite or masked
+    ones zeroed."""
+
+    c: tuple  # r = 0, 1, 2: (N, So, Mo, Kd - r) d^r/dt^r coefficients in the segment's s
+    lo: jax.Array  # (So, Mo) segment start, s
+    he: jax.Array  # (So, Mo) segment length (1 where zero)
+    pos: jax.Array  # (So, Mo) bool: the segment has a positive length
+    brk: jax.Array  # (max(So - 1, 1), Mo) interior breaks (segment look-up)
+    end: jax.Array  # (Mo,) end time T_j
+    coast: jax.Array  # (Mo,) bool
+
+
+def prepare_others(others: Trajectory, mask) -> OthersPrep:
+    """:class:`OthersPrep` of the others' predictions (what :func:`others_derivs` reads
+    at every call, cleaned and scaled once)."""
+    c = others.coeffs
+    b = others.breaks
+    ok = mask & jnp.all(jnp.isfinite(c), axis=(-1, -2, -3)) & jnp.all(jnp.isfinite(b), axis=-1)
+    b = jnp.where(ok[:, None], b, 0.0)
+    So, N, Kd = c.shape[-3:]
+    lo, hi = b[:, :-1].T, b[:, 1:].T  # (So, Mo)
+    h = hi - lo
+    he = jnp.where(h > 0, h, 1.0)
+    cc = jnp.where(ok[None, None, :, None], jnp.transpose(c, (2, 1, 0, 3)), 0.0)  # (N, So, Mo, Kd)
+    rows = []
+    for r in range(3):
+        if r >= Kd:
+            rows.append(jnp.zeros(cc.shape[:-1] + (1,), c.dtype))
+            continue
+        f = np.array([falling(i, r) for i in range(r, Kd)], float)
+        rows.append(cc[..., r:] * f / (he[None, :, :, None] ** r))
+    brk = b[:, 1:So].T if So > 1 else jnp.zeros((1, b.shape[0]), b.dtype)
+    return OthersPrep(tuple(rows), lo, he, h > 0, brk, b[:, -1], others.coast)
+
+
+def others_jet(op: OthersPrep, t, R: int):
+    """The others' derivatives 0..R at times t (K,): a list of (N, Mo, K) arrays (what
+    :func:`others_derivs` gives, laid out components first and samples last).  After an
+    other's end it holds (coast False) or coasts (coast True)."""
+    So = op.c[0].shape[1]
+    tt = t[None, :]
+    To = op.end[:, None]
+    tc = jnp.clip(tt, 0.0, To)  # (Mo, K)
+    if So > 1:
+        k = jnp.clip(jnp.sum(op.brk[:, :, None] <= tc[None], axis=0), 0, So - 1)
+    vals = []
+    for r in range(max(R, 1) + 1):
+        out = 0.0
+        for i in range(So):
+            s = jnp.where(op.pos[i][:, None], (tc - op.lo[i][:, None]) / op.he[i][:, None], 0.0)
+            cr = op.c[r][:, i]  # (N, Mo, Kd - r)
+            v = cr[..., -1, None]
+            for j in range(cr.shape[-1] - 2, -1, -1):
+                v = v * s[None] + cr[..., j, None]
+            out = v if So == 1 else out + jnp.where((k == i)[None], v, 0.0)
+        vals.append(out)
+    after = (tt > To)[None]
+    coast = op.coast[None, :, None]
+    res = [vals[0] + jnp.where(after & coast, vals[1] * (tt - To)[None], 0.0)]
+    if R >= 1:
+        res.append(jnp.where(after & ~coast, 0.0, vals[1]))
+    for r in range(2, R + 1):
+        res.append(jnp.where(after, 0.0, vals[r]))
+    return res
+
+
+def _affine_jets(fn, tau):
+    """fn(tau) -> (b (N, K), C (K, nz)), the features P = b + z C^T, affine in z for a
+    fixed tau: their values and first and second tau derivatives (nested jvp)."""
+    one = jnp.ones_like(tau)
+    (v, d1), (_, d2) = jax.jvp(lambda t: jax.jvp(fn, (t,), (one,)), (tau,), (one,))
+    return v, d1, d2
+
+
+def _chain(z, T, jets, G, Hgg, HgT, GT, HTT):
+    """(gradient (n,), Hessian (n, n)) in x = (z, tau) of a sum over samples k of local
+    terms F_k(P_1k, .., P_mk, T) through m feature groups P_g = b_g(tau) + z C_g(tau)^T
+    (N, K) each and T = exp(tau) (the chain rule of that composition; every factor comes
+    from autodiff).  The groups are stacked on a leading axis.
+
+    jets: ((b, C), (b', C'), (b'', C'')) from :func:`_affine_jets`, b (m, N, K) and C
+    (m, K, nz).  G, Hgg, HgT: the local gradient (m, N, K), Hessian (m, N, N, K) and T
+    cross term (m, N, K) of F in each group; GT, HTT (K,): its T gradient and curvature.
+    The local Hessian has no blocks between groups (true of the radial terms here)."""
+    N, nz = z.shape
+    (_, C), (b1, C1), (b2, C2) = jets
+    Ct, C1t, C2t = (jnp.swapaxes(c, 1, 2)[:, None] for c in (C, C1, C2))  # (m, 1, nz, K)
+    pt = b1 + jnp.sum(z[None, :, :, None] * C1t, axis=2)  # (m, N, K)
+    ptt = b2 + jnp.sum(z[None, :, :, None] * C2t, axis=2)
+    gz = jnp.sum(G[:, :, None, :] * Ct, axis=(0, 3))  # (N, nz)
+    gt = jnp.sum(GT) * T + jnp.sum(G * pt)
+    CC = Ct[:, 0, :, None, :] * Ct[:, 0, None, :, :]  # (m, nz, nz, K)
+    hzz = jnp.sum(Hgg[:, :, None, :, None, :] * CC[:, None, :, None, :, :], axis=(0, 5))
+    Hpt = jnp.sum(Hgg * pt[:, None, :, :], axis=2)  # (m, N, K)
+    hzt = (jnp.sum((Hpt + HgT * T)[:, :, None, :] * Ct, axis=(0, 3))
+           + jnp.sum(G[:, :, None, :] * C1t, axis=(0, 3)))
+    htt = (jnp.sum(T * T * HTT + T * GT) + jnp.sum(pt * Hpt) + 2.0 * T * jnp.sum(HgT * pt)
+           + jnp.sum(G * ptt))
+    n = N * nz + 1
+    H = jnp.zeros((n, n), z.dtype)
+    H = H.at[:-1, :-1].set(hzz.reshape(N * nz, N * nz))
+    H = H.at[:-1, -1].set(hzt.reshape(-1)).at[-1, :-1].set(hzt.reshape(-1)).at[-1, -1].set(htt)
+    return jnp.concatenate([gz.reshape(-1), gt[None]]), H
+
+
+def _kind_rows(params, structure, name: str, orders):
+    """The basis rows of sample set ``name`` for derivative ``orders`` and the lane's end
+    kind: (apply, C) with apply(e (6, N)) -> (m, N, K) the boundary part B e and C (m, K,
+    nz).  Both kinds' constants are applied in one matrix product (for all lanes under
+    vmap; a per-lane matrix would be a batched product of small matrices) and the lane's
+    result selected."""
+    b = basis(structure)
+    both = np.stack([np.stack([getattr(k, name)[r] for r in orders]) for k in (b.free, b.rest)])
+    m, K = len(orders), both.shape[2]  # both: (2, m, K, 6 + nz)
+    Bm = jnp.asarray(both[..., :6].reshape(-1, 6))
+    rest = jnp.asarray(params.rest, bool)
+
+    def apply(e):
+        out = (Bm @ e).reshape(2, m, K, -1)
+        return jnp.swapaxes(jnp.where(rest, out[1], out[0]), 1, 2)
+
+    return apply, jnp.where(rest, jnp.asarray(both[1, ..., 6:]), jnp.asarray(both[0, ..., 6:]))
+
+
+def _lim_affine(params, structure, name):
+    """tau -> (b (3, N, K), C (3, K, nz)): the velocity, acceleration and jerk features at
+    the basis sample set ``name`` ("quad" or "lim"), Y_r = (B_r e(h) + C_r z) / h^r =
+    b_r + z C_r^T, three stacked groups."""
+    S = structure.segments
+    apply, C = _kind_rows(params, structure, name, (1, 2, 3))
+    r = jnp.arange(1, 4, dtype=jnp.float64)[:, None, None]
+
+    def f(t):
+        h = jnp.exp(t) / S
+        sc = h ** -r
+        return apply(boundary_vector(params, h)) * sc, C * sc
+
+    return f
+
+
+def _lim_jets(params, structure, name, tau):
+    """Jets of :func:`_lim_affine`'s features (value, first and second tau derivative)."""
+    return _affine_jets(_lim_affine(params, structure, name), tau)
+
+
+def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
+    """Value, gradient and Hessian of the soft limits (``w`` the quadrature weights) or of
+    the hard-limit AL terms (``lam`` (K, 3)) through their three radial feature groups;
+    and the features Y (3, N, K)."""
+    lim = params.limits
+    (b, C), _, _ = jets
+    Y = b + jnp.sum(z[None, :, :, None] * jnp.swapaxes(C, 1, 2)[:, None], axis=2)  # (3, N, K)
+    rho = jnp.sum(Y * Y, axis=1)  # (3, K)
+    tm2 = (jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2)[:, None]
+    K = Y.shape[-1]
+    if soft:
+        av, a1, a2 = _elementwise_derivs(lambda rr: params.weights.q_lim * w * sexp(rr - tm2), rho)
+        cd, cdd = T * a1, T * a2
+        val = T * jnp.sum(av)
+        GT = jnp.sum(av, axis=0)
+        HgT = 2.0 * a1[:, None] * Y
+    else:
+        bv, cd, cdd = _elementwise_derivs(lambda rr: al_term(1.0 - rr / tm2, lam.T, mu), rho)
+        val = jnp.sum(bv)
+        GT = jnp.zeros(K, z.dtype)
+        HgT = jnp.zeros_like(Y)
+    N = z.shape[0]
+    G = 2.0 * cd[:, None] * Y
+    Hgg = (4.0 * cdd[:, None, None] * Y[:, :, None] * Y[:, None, :]
+           + 2.0 * cd[:, None, None] * jnp.eye(N, dtype=z.dtype)[:, :, None])
+    g, H = _chain(z, T, jets, G, Hgg, HgT, GT, jnp.zeros(K, z.dtype))
+    return val, g, H, Y
+
+
+def _col_affine(params, structure, kind):
+    """tau -> (b (1, N, K), C (1, K, nz)): the own positions at the collision rows
+    (samples, then the coast), p = b + z C^T, one group."""
+    S = structure.segments
+    n = structure.n_coast
+    apply, C0 = _kind_rows(params, structure, "col", (0,))
+
+    def f(t):
+        e = boundary_vector(params, jnp.exp(t) / S)
+        b = apply(e)  # (1, N, Kc)
+        C = C0
+        if n:
+            h = jnp.exp(t) / S
+            tc = jnp.arange(1, n + 1) / n * coast_time(params.limits)
+            E0, E1 = kind.end[0, 0], kind.end[1, 0]
+            be = (E0[:6] @ e)[:, None] + (E1[:6] @ e)[:, None] * (tc / h)[None, :]
+            Ce = E0[None, 6:] + (tc / h)[:, None] * E1[None, 6:]
+            b = jnp.concatenate([b, be[None]], axis=2)
+            C = jnp.concatenate([C, Ce[None]], axis=1)
+        return b, C
+
+    return f
+
+
+def _col_jets(params, structure, kind, tau):
+    """Jets of :func:`_col_affine`'s positions (value, first and second tau derivative)."""
+    return _affine_jets(_col_affine(params, structure, kind), tau)
+
+
+def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
+                 others: OthersPrep | None = None):
+    """:func:`merit` at the C points x = (z, tau) for the shapes zs (C, N, nz) at ONE
+    horizon tau: the values (C,), equal to a vmap of :func:`merit` over the points to
+    rounding.  What depends on tau alone (boundary terms, the other robots' positions at
+    the samples) is formed once, and the terms are laid out as in :func:`merit_derivs`
+    (components first): on the benchmark's NLPs (9 others) five shapes cost about what
+    one :func:`merit` call costs, ~4x less than a vmap of it over the five points (used
+    by :func:`jaxplan.solver.initial_guess`)."""
+    b = basis(structure)
+    T = jnp.exp(tau)
+    h = T / structure.segments
+    wt = params.weights
+    e = boundary_vector(params, h)
+    val = (wt.q_dynm * (jnp.sum(e * (kind.M @ e)) + jnp.sum(kind.q * zs * zs, axis=(1, 2))) / h**5
+           + wt.k_t * T)
+    lim = params.limits
+    tm2 = (jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2)[:, None]
+
+    def radial(name):  # (C, 3, K): |Y_r|^2 of the limit features
+        bl, Cl = _lim_affine(params, structure, name)(tau)
+        Y = bl[None] + jnp.einsum("cnz,gkz->cgnk", zs, Cl)
+        return jnp.sum(Y * Y, axis=2)
+
+    val = val + wt.q_lim * T * jnp.sum(jnp.asarray(b.quad_w) * sexp(radial("quad") - tm2),
+                                       axis=(1, 2))
+    if structure.paper:
+        val = val + jax.vmap(lambda z: paper_collision(pack(z, tau), params, structure, kind))(zs)
+    if has_sampled_collision(structure):
+        op = prepare_others(params.others, params.other_mask) if others is None else others
+        s, off, w, on = collision_rows(params, structure)
+        bp, C = _col_affine(params, structure, kind)(tau)
+        p = bp[0][None] + jnp.einsum("cnz,kz->cnk", zs, C[0])  # (C, N, K)
+        X = p[:, :, None, :] - others_jet(op, T * s + off, 0)[0][None]  # (C, N, Mo, K)
+        r = jnp.sum(X * X, axis=1)  # (C, Mo, K)
+        mask = params.other_mask[:, None]
+        rho = (params.radius + params.other_radius)[:, None]
+        if structure.barrier:
+            ex = wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(r + DIST_EPS2) - rho))
+            val = val + T * jnp.sum(jnp.where(mask, ex, 0.0), axis=(1, 2))
+        if structure.collision_constraints:
+            use = mask & on[None, :]
+            val = val + jnp.sum(jnp.where(use, al_term(r - rho * rho, mult.collision.T, mu),
+                                          0.0), axis=(1, 2))
+    if structure.hard_limits:
+        val = val + jnp.sum(al_term(1.0 - radial("lim") / tm2, mult.limits.T, mu), axis=(1, 2))
+    return val
+
+
+def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool = False,
+                 others: OthersPrep | None = None):
+    """(value, gradient (n,), Hessian (n, n)) of the augmented Lagrangian at x; with
+    ``with_g`` also the inequality constraints g(x) (as :func:`constraints`, from the
+    same features and other-robot positions: what the solver needs at a trial point).
+
+    By the features' block structure (module doc): each axis's features are affine in
+    that axis's shape variables, so the chain rule (:func:`_chain`) runs on small
+    per-sample blocks; the other robots' jets come from ``others`` (formed once per solve
+    by :func:`prepare_others`; here when None)."""
+    b = basis(structure)
+    N = structure.n_dim
+    Mo = params.other_mask.shape[-1]
+    z, tau = unpack(x, structure)
+    T = jnp.exp(tau)
+    gc = jnp.ones((structure.n_col, Mo), x.dtype)
+    gh = jnp.ones((len(b.lim_s), 3), x.dtype)
+    tv, tg, tH = _smooth_time_derivs(x, params, structure, kind)
+    jq = _lim_jets(params, structure, "quad", tau)
+    v, g, H, _ = _lim_terms(z, T, jq, jnp.asarray(b.quad_w), None, params, mu, True)
+    tv, tg, tH = tv + v, tg + g, tH + H
+    if structure.paper:
+        v, g, H = _value_grad_hessian(lambda xx: paper_collision(xx, params, structure, kind), x)
+        tv, tg, tH = tv + v, tg + g, tH + H
+    if has_sampled_collision(structure):
+        op = prepare_others(params.others, params.other_mask) if others is None else others
+        s, off, w, on = collision_rows(params, structure)
+        jets = _col_jets(params, structure, kind, tau)
+        (bp, C), _, _ = jets
+        p = bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)  # (N, K)
+        o0, o1, o2 = others_jet(op, T * s + off, 2)  # (N, Mo, K)
+        X = p[:, None, :] - o0
+        u = -s * o1
+        ww = -(s * s) * o2
+        r = jnp.sum(X * X, axis=0)  # (Mo, K)
+        mask = params.other_mask[:, None]
+        rho = (params.radius + params.other_radius)[:, None]
+        wt = params.weights
+        zero = (jnp.zeros_like(r),) * 3
+        if structure.barrier:
+            af = lambda rr: jnp.where(
+                mask, wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
+            av, a1, a2 = _elementwise_derivs(af, r)
+        else:
+            av, a1, a2 = zero
+        if structure.collision_constraints:
+            use = mask & on[None, :]
+            lam = mult.collision.T
+            bf = lambda rr: jnp.where(use, al_term(rr - rho * rho, lam, mu), 0.0)
+            bv, b1, b2 = _elementwise_derivs(bf, r)
+            if with_g:
+                gc = jnp.where(use, r - rho * rho, 1.0).T
+        else:
+            bv, b1, b2 = zero
+        cd = T * a1 + b1
+        cdd = T * a2 + b2
+        Xu = jnp.sum(X * u, axis=0)
+        v = jnp.sum(T * av + bv)
+        Gp = 2.0 * jnp.sum(cd * X, axis=1)
+        GT = jnp.sum(2.0 * cd * Xu + av, axis=0)
+        eye = jnp.eye(N, dtype=x.dtype)[:, :, None]
+        Hpp = (4.0 * jnp.sum(cdd * X[:, None] * X[None, :], axis=2)
+               + 2.0 * jnp.sum(cd, axis=0) * eye)
+        HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1) * X + 2.0 * cd * u, axis=1)
+        q = jnp.sum(u * u + X * ww, axis=0)
+        HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * q + 4.0 * a1 * Xu, axis=0)
+        g, H = _chain(z, T, jets, Gp[None], Hpp[None], HpT[None], GT, HTT)
+        tv, tg, tH = tv + v, tg + g, tH + H
+    if structure.hard_limits:
+        jh = _lim_jets(params, structure, "lim", tau)
+        v, g, H, Yh = _lim_terms(z, T, jh, None, mult.limits, params, mu, False)
+        tv, tg, tH = tv + v, tg + g, tH + H
+        if with_g:
+            lim = params.limits
+            tm2 = jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2
+            gh = (1.0 - jnp.sum(Yh * Yh, axis=1) / tm2[:, None]).T
+    if with_g:
+        return tv, tg, tH, Multipliers(gc, gh)
+    return tv, tg, tH

@@ -1,0 +1,154 @@
+"""The NLP's data: weights, limits, the static structure, the per-robot parameters and
+the augmented-Lagrangian multipliers (docs/MATH.md section 2; the decision variables and
+terms are described in :mod:`jaxplan.nlp`).
+
+COLLISION_MODES lists the collision treatments the NLP knows; PLANNER_COLLISION_MODES
+those a planner config may choose (every mode but "none").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+
+from jaxplan.trajectory import Trajectory
+
+# the collision treatments of the NLP ("none": no collision terms) and those a planner
+# config may choose
+COLLISION_MODES = ("paper", "barrier", "constraint", "barrier+constraint", "none")
+PLANNER_COLLISION_MODES = tuple(m for m in COLLISION_MODES if m != "none")
+SEXP_KNEE = 30.0
+DIST_EPS2 = 1e-12  # m^2, smooths |dx| at 0
+
+
+# ---------------------------------------------------------------------- data
+class Weights(NamedTuple):
+    """Objective weights (scalars, traced: changing them does not recompile)."""
+
+    q_dynm: jax.Array  # smoothness, per (m/s^3)^2 s
+    q_obs: jax.Array  # collision cost
+    q_lim: jax.Array  # soft dynamic limits
+    k_t: jax.Array  # price of one second
+    k_p: jax.Array  # 1/m, collision decay rate
+
+
+class Limits(NamedTuple):
+    """Dynamic limits (norms over axes), traced scalars."""
+
+    v_max: jax.Array  # m/s
+    a_max: jax.Array  # m/s^2
+    j_max: jax.Array  # m/s^3
+
+
+@dataclass(frozen=True)
+class NLPStructure:
+    """Static shape of the NLP (hashable; a change recompiles).
+
+    Attributes:
+        n_dim: spatial axes N.
+        degree: polynomial degree D per segment (>= 5 for C^2 joints with freedom).
+        segments: number of equal segments S (C^2 joints).
+        collision: one of COLLISION_MODES ("none" disables collision terms).
+        n_collision_samples: collision samples (a multiple of 4: composite 4-point
+            Gauss-Legendre panels over [0, T]).
+        n_quadrature: Gauss-Legendre nodes per segment for the soft-limit integral.
+        hard_limits: add the constraints |x^(k)(t_i)| <= tau_k.
+        n_limit_samples: uniform sample times in (0, T] for the hard limits.
+        n_coast_samples: collision constraints on a FREE-end plan's coast after T (what
+            it flies if nothing replaced it: p(T) + v(T) t), at t = t_c k / n for
+            k = 1..n, with t_c = :func:`coast_time` (long enough to stop from v_max).
+            Only in the modes with collision constraints; no barrier there; inactive on
+            rest lanes (their coast is a hold, checked by the last samples).  0 = off
+            (the paper's NLP).
+    """
+
+    n_dim: int = 3
+    degree: int = 5
+    segments: int = 1
+    collision: str = "barrier+constraint"
+    n_collision_samples: int = 32
+    n_quadrature: int = 8
+    hard_limits: bool = False
+    n_limit_samples: int = 16
+    n_coast_samples: int = 0
+
+    def __post_init__(self):
+        if self.collision not in COLLISION_MODES:
+            raise ValueError(f"collision must be one of {COLLISION_MODES}, got {self.collision!r}")
+        if self.degree < 5:
+            raise ValueError("degree must be >= 5 (a rest end needs 6 conditions per segment)")
+        if self.segments < 1 or self.n_dim < 1:
+            raise ValueError("segments and n_dim must be >= 1")
+        if self.n_collision_samples % 4 or self.n_collision_samples < 4:
+            raise ValueError("n_collision_samples must be a positive multiple of 4")
+        if self.n_coast_samples < 0:
+            raise ValueError("n_coast_samples must be >= 0")
+
+    @property
+    def barrier(self) -> bool:
+        return self.collision in ("barrier", "barrier+constraint")
+
+    @property
+    def paper(self) -> bool:
+        return self.collision == "paper"
+
+    @property
+    def collision_constraints(self) -> bool:
+        return self.collision in ("constraint", "barrier+constraint")
+
+    @property
+    def n_coast(self) -> int:
+        """Coast samples in use (0 unless the mode has collision constraints)."""
+        return self.n_coast_samples if self.collision_constraints else 0
+
+    @property
+    def n_col(self) -> int:
+        """Rows of the collision constraints: the samples in [0, T], then the coast."""
+        return self.n_collision_samples + self.n_coast
+
+    @property
+    def nz(self) -> int:
+        """Shape variables per axis (free-end count; rest lanes use nz - 2)."""
+        return self.segments * (self.degree - 2) - 1
+
+    @property
+    def n_x(self) -> int:
+        return self.n_dim * self.nz + 1
+
+
+class NLPParams(NamedTuple):
+    """Everything one robot's NLP depends on besides its structure (a pytree).
+
+    Shapes for one problem (add leading batch axes for vmap):
+        p0, v0, a0: (N,) start state.   goal_p, goal_v, goal_a: (N,) end state.
+        rest: () bool; True: fully defined end state (goal_p, goal_v, goal_a), False:
+            free end (goal_p only).
+        others: Trajectory with batch (Mo,): the other robots' predictions (any S, D).
+        other_radius: (Mo,) m.   other_mask: (Mo,) bool, False = ignore.
+        radius: () m.   weights: Weights.   limits: Limits.   t_min: () s (> 0).
+    """
+
+    p0: jax.Array
+    v0: jax.Array
+    a0: jax.Array
+    goal_p: jax.Array
+    goal_v: jax.Array
+    goal_a: jax.Array
+    rest: jax.Array
+    others: Trajectory
+    other_radius: jax.Array
+    other_mask: jax.Array
+    radius: jax.Array
+    weights: Weights
+    limits: Limits
+    t_min: jax.Array
+
+
+class Multipliers(NamedTuple):
+    """Augmented-Lagrangian multipliers (>= 0) of the inequality constraints."""
+
+    collision: jax.Array  # (Kc + n_coast, Mo)
+    limits: jax.Array  # (Kh, 3)
+

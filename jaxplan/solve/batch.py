@@ -1,0 +1,100 @@
+"""The batch entry points: :func:`solve_batch` (a jitted solve over leading axes, split
+over CPU devices, lanes pooled) and :func:`initial_guess_batch`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
+from jaxplan.solve.devices import as_strong_dtypes, default_shards, shard_lanes
+from jaxplan.solve.guess import initial_guess
+from jaxplan.solve.pool import default_pool, solve_lanes
+from jaxplan.solve.types import Solution, SolverSettings
+
+
+@functools.partial(jax.jit, static_argnames=("structure", "pool", "shards"))
+def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool, shards=1,
+                     x_fallback=None):
+    lead = jnp.shape(params.radius)  # radius: () per problem
+    flat = lambda t: None if t is None else jax.tree.map(
+        lambda a: a.reshape((-1,) + a.shape[len(lead):]), t)
+    if x_fallback is None:
+        x_fallback = x0
+
+    def lanes(p, x, m, u, xf):
+        if x is None:  # a cold start: each shard forms its own lanes' guesses
+            x = xf = jax.vmap(lambda q: initial_guess(q, structure))(p)
+        return solve_lanes(p, x, structure, settings, m, u, pool=pool, x_fallback=xf)
+
+    args = (flat(params), flat(x0), flat(multipliers), flat(penalty), flat(x_fallback))
+    sol = lanes(*args) if shards == 1 else shard_lanes(lanes, args, shards)
+    return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), sol)
+
+
+def solve_batch(params: NLPParams, x0, structure: NLPStructure,
+                settings: SolverSettings = SolverSettings(),
+                multipliers: Multipliers | None = None, penalty=None,
+                pool: int | None = None, shards: int | None = None) -> Solution:
+    """:func:`solve` over all leading axes of x0 (..., n_x) and params (same leading
+    axes), jitted; ``settings`` is shared.  x0 = None: a cold start, every problem from
+    its :func:`initial_guess`, formed in the same compiled program as the solve (each
+    CPU device forms its own problems' guesses: the same guesses as
+    :func:`initial_guess_batch`, without a second call and its wait for every device).
+    Weights, limits and settings are traced: new values (Python scalars or arrays)
+    reuse the compiled function (``_solve_batch_jit``).
+    ``shards``: CPU devices the problems are split over (default :func:`default_shards`
+    of the number of problems; at most ``len(jax.devices("cpu"))``).  ``pool``: lanes
+    stepped at a time on each (:func:`solve_lanes`; default :func:`default_pool` of the
+    problems per shard and of the other robots per problem).  Each problem takes the
+    same iterations whatever the pool and shards; with shards the compiled code differs,
+    so results can differ by rounding.  A problem whose x0 is not finite starts from
+    :func:`initial_guess` (formed by a separate call, only then)."""
+    lead = jnp.shape(params.radius)
+    if x0 is not None and tuple(jnp.shape(x0)[:-1]) != tuple(lead):
+        raise ValueError(f"x0 has leading axes {tuple(jnp.shape(x0)[:-1])}, params {tuple(lead)}")
+    B = math.prod(lead)
+    if shards is None:
+        shards = default_shards(B)
+    n_cpu = len(jax.devices("cpu"))
+    if not 1 <= int(shards) <= n_cpu:
+        raise ValueError(f"shards = {shards}: expected 1 .. {n_cpu} (the CPU devices)")
+    shards = min(int(shards), max(B, 1))
+    if pool is None:
+        pool = default_pool(-(-B // shards), n_others=params.other_mask.shape[-1])
+    params = as_strong_dtypes(params)
+    x0 = None if x0 is None else as_strong_dtypes(x0)
+    # the lanes whose x0 is not finite start from initial_guess (as solve() does); it is
+    # formed by a call of its own, only when needed, so that the solver's program does
+    # not carry it (~2 s of its ~8-14 s compile time)
+    x_fallback = x0
+    if x0 is not None and not np.all(np.isfinite(np.asarray(x0))):
+        x_fallback = initial_guess_batch(
+            jax.tree.map(lambda a: a.reshape((-1,) + a.shape[x0.ndim - 1:]), params),
+            structure).reshape(x0.shape)
+    return _solve_batch_jit(params, x0, structure, as_strong_dtypes(settings),
+                            None if multipliers is None else as_strong_dtypes(multipliers),
+                            None if penalty is None else as_strong_dtypes(penalty), pool, shards,
+                            x_fallback)
+
+
+def initial_guess_batch(params: NLPParams, structure: NLPStructure,
+                        shards: int | None = None):
+    """initial_guess over one leading batch axis, jitted; split over ``shards`` CPU
+    devices (default :func:`default_shards` of the batch size, as :func:`solve_batch`)."""
+    B = jax.tree.leaves(params)[0].shape[0]
+    shards = default_shards(B) if shards is None else max(1, min(int(shards), B))
+    return _initial_guess_jit(as_strong_dtypes(params), structure, shards)
+
+
+@functools.partial(jax.jit, static_argnames=("structure", "shards"))
+def _initial_guess_jit(params, structure, shards):
+    fn = jax.vmap(lambda p: initial_guess(p, structure))
+    return fn(params) if shards == 1 else shard_lanes(fn, (params,), shards)
+
+

@@ -1,0 +1,151 @@
+"""The Newton directions of a batch of lanes: Cholesky where it settles the step, else
+an eigendecomposition with floored eigenvalues (:func:`directions`), and the LAPACK
+batching that keeps those calls safe on a CPU (:func:`lapack_safe`; docs/SOLVER.md,
+"LAPACK chunking").
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+# thread waiting: a deadlock at 0% CPU (seen: two threads solving two-segment NLPs).
+# So on a CPU eigh_safe never passes the kernel a batch that it would split.
+LAPACK_SPLIT_COST = 200_000  # the kernel's kMinWorkPerTask
+EIGH_COST = 5  # its cost_per_matrix of eigh, per n^3
+UNROLL_EIGH = 8  # eigh_safe: up to this many calls unrolled, more in a loop
+
+
+def eigh_chunk(n: int) -> int:
+    """The most n x n matrices one CPU eigh call takes without splitting its batch."""
+    return max(1, (LAPACK_SPLIT_COST - 1) // (EIGH_COST * n ** 3))
+
+
+def lapack_safe(fn, per: int = 1):
+    """``fn`` of one matrix (n, n) (first argument; LAPACK inside) made safe to vmap on a
+    CPU: under vmap the batch goes to LAPACK in calls of at most eigh_chunk(n) matrices
+    (cheaper kernels than eigh's split later, so its bound covers them), which jaxlib
+    runs on the calling thread (see LAPACK_SPLIT_COST); elsewhere (a GPU) one batched
+    call.  The results are those of the batched call: LAPACK treats each matrix alone.
+    Every argument must be batched along with the matrix.
+
+    Nested vmaps (``jax.vmap`` of :func:`solve`, whose steps vmap over a batch of one
+    lane) stay safe too: the batched function each level forms is itself made safe, with
+    ``per`` the matrices one of its calls already holds, so an outer level chunks its
+    batch by eigh_chunk(n) // per (before, the outer vmap batched the inner level's
+    LAPACK call whole: a vmapped solve of 640 lanes hung at 0% CPU)."""
+    safe = jax.custom_batching.custom_vmap(fn)
+
+    @safe.def_vmap
+    def rule(axis_size, in_batched, *args):
+        if not any(in_batched):
+            out = safe(*args)
+            return out, jax.tree.map(lambda _: False, out)
+        args = [a if b else jnp.broadcast_to(a, (axis_size,) + jnp.shape(a))
+                for a, b in zip(args, in_batched, strict=True)]
+        n = args[0].shape[-1]
+        k = max(1, eigh_chunk(n) // per)  # lanes per LAPACK call
+        many = lapack_safe(jax.vmap(fn), per * min(k, axis_size))
+
+        def in_chunks(*args):
+            if k >= axis_size:
+                return many(*args)
+            parts = -(-axis_size // k)
+            if parts <= UNROLL_EIGH:
+                outs = [many(*(a[i:i + k] for a in args)) for i in range(0, axis_size, k)]
+                return jax.tree.map(lambda *o: jnp.concatenate(o), *outs)
+            pad = parts * k - axis_size  # padded with copies of the first lane
+            padded = [jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad,) + a.shape[1:])])
+                      for a in args]
+            out = jax.lax.map(lambda xs: many(*xs),
+                              [a.reshape((parts, k) + a.shape[1:]) for a in padded])
+            return jax.tree.map(lambda o: o.reshape((parts * k,) + o.shape[2:])[:axis_size],
+                                out)
+
+        out = jax.lax.platform_dependent(*args, cpu=in_chunks, default=many)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return safe
+
+
+@lapack_safe
+def eigh_safe(H):
+    """(eigenvalues, eigenvectors) of the symmetric H (n, n) by jnp.linalg.eigh (LAPACK
+    syevd on a CPU, batched safely: :func:`lapack_safe`)."""
+    return tuple(jnp.linalg.eigh(H))
+
+
+def direction(H, grad, reg):
+    """-|H|_reg^-1 grad: eigenvalues by magnitude, floored at reg * max|eigenvalue|.
+
+    reg = 1e-13 (~450 x the float64 epsilon, so a floored eigenvalue is still well above
+    eigh's rounding).  With large penalties (mu ~ 1e9-1e10, where warm-started fleets
+    with close encounters go) the largest eigenvalue is ~1e12, and the former 1e-10
+    floored the objective's own curvature: Newton degraded to linear convergence and
+    lanes ran to max_iters (bench, 100 robots: 1-4 such lanes per replan, none with
+    1e-12..1e-14, and 2x fewer iterations)."""
+    w, V = eigh_safe(H)
+    wa = jnp.abs(w)
+    floor = reg * jnp.max(wa) + 1e-300
+    wm = jnp.maximum(wa, floor)
+    d = -V @ ((V.T @ grad) / wm)
+    return d
+
+
+@lapack_safe
+def newton_cholesky(H, grad, reg):
+    """(d, settled) for one H (n, n): the Newton step d = -H^-1 grad by Cholesky (LAPACK
+    potrf and a triangular inverse L^-1, then d = -L^-T L^-1 grad: ~0.2-2 us per 7 x 7 -
+    16 x 16 matrix on a 2-core CPU, against ~6-23 us for syevd), and whether it is
+    :func:`direction`'s step: H positive definite with lambda_min >= reg * lambda_max,
+    so that no eigenvalue is floored.  That is checked without eigenvalues: lambda_max
+    <= |H|_F and lambda_min >= 1 / trace(H^-1) = 1 / |L^-1|_F^2.  Where not settled, d
+    is 0."""
+    n = H.shape[-1]
+    eye = jnp.eye(n, dtype=H.dtype)
+    L = jnp.linalg.cholesky(H)  # NaN where H is not positive definite
+    pd = jnp.all(jnp.isfinite(L))
+    L = jnp.where(pd, L, eye)
+    Li = jax.scipy.linalg.solve_triangular(L, eye, lower=True)
+    settled = pd & (jnp.sum(Li * Li) * jnp.sqrt(jnp.sum(H * H)) * reg <= 1.0)
+    # H^-1 = L^-T L^-1 with L^-1 at hand: two small products instead of two more LAPACK
+    # calls (triangular solves); steps within ~1e-14 of the solves', the same iterations
+    # on the benchmark's batch, which took 1.02-1.09x less time (interleaved A/B, 20 and
+    # 24 rounds, 2026-12-03)
+    d = -(Li.T @ (Li @ grad))
+    return jnp.where(settled & jnp.all(jnp.isfinite(d)), d, 0.0), settled & jnp.all(
+        jnp.isfinite(d))
+
+
+EIGH_CHUNK = 2  # directions: matrices per eigh call where Cholesky does not settle it
+
+
+def directions(H, grad, need, reg):
+    """The Newton directions -|H|_reg^-1 grad of a batch (B, n, n), (B, n) (what
+    :func:`direction` gives), for the lanes where ``need`` (the others: anything finite).
+
+    Where H is positive definite with lambda_min >= reg * lambda_max, no eigenvalue is
+    floored and the direction is -H^-1 grad: solved by Cholesky.  That bound is checked
+    without eigenvalues: lambda_max <= |H|_F and lambda_min >= 1 / |L^-1|_F^2.  The
+    other lanes (indefinite or nearly singular Hessians: about half of the iterations of
+    a cold fleet solve) get :func:`direction`, EIGH_CHUNK lanes per call, in a loop
+    that runs as many times as they need, so a batch pays an eigendecomposition only
+    for them (on a CPU it costs ~40x the Cholesky)."""
+    B, n = grad.shape
+    d, well = jax.vmap(newton_cholesky, in_axes=(0, 0, None))(H, grad, reg)
+    use = need & ~well
+    order = jnp.argsort(~use, stable=True)  # the lanes that need eigh first
+    cnt = jnp.sum(use, dtype=jnp.int32)
+    c = min(EIGH_CHUNK, B)
+    one = jax.vmap(lambda h, gr: direction(h, gr, reg))
+
+    def body(carry):
+        i, d = carry
+        idx = jax.lax.dynamic_slice(order, (i,), (c,))  # clamped to fit: repeats are harmless
+        de = one(H[idx], grad[idx])
+        d = d.at[idx].set(jnp.where(use[idx][:, None], de, d[idx]))
+        return i + c, d
+
+    return jax.lax.while_loop(lambda carry: carry[0] < cnt, body, (jnp.int32(0), d))[1]
+
+

@@ -1,0 +1,143 @@
+"""The lane pool: :func:`solve_lanes` steps a pool of lanes at a time and hands each
+finished slot the next lane; :func:`default_pool` picks the pool size (docs/SOLVER.md,
+"lane pool").
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
+from jaxplan.pytree import tree_where
+from jaxplan.solve.alsqp import Lane, State, finish_lane, init_lane, is_active, step_lanes
+from jaxplan.solve.guess import initial_guess
+from jaxplan.solve.types import Solution, SolverSettings
+
+
+def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
+                settings: SolverSettings = SolverSettings(),
+                multipliers: Multipliers | None = None, penalty=None, x_fallback=None,
+                pool: int | None = None) -> Solution:
+    """:func:`solve` over one leading axis of B lanes, ``pool`` lanes stepped at a time.
+
+    Under a plain vmap every lane runs for as many iterations as the slowest lane needs
+    (the finished ones idle).  Here a pool of ``pool`` slots steps together; a slot
+    whose lane finishes takes the next unstarted lane.  Each lane still takes exactly
+    the iterations of :func:`solve` (the same results), but the work is about the sum of
+    the lanes' iterations instead of B times the largest.  pool = B (or None) is the
+    plain vmap.  A batch of at most LOCKSTEP_MAX lanes first steps all its lanes in
+    lockstep while more than half are active (:func:`_pooled`).  On a CPU, where a step
+    costs a fixed part plus about in proportion to its lanes, a small pool pays when
+    iteration counts are uneven; on a GPU a step of B lanes costs about what one of a
+    few lanes costs, so pool = B is right there (:func:`default_pool`).
+    Pure; jit at the call site (``pool`` and ``structure`` are static).
+    """
+    s = settings
+    B = x0.shape[0]
+    pool = B if pool is None else max(1, min(int(pool), B))
+    if x_fallback is None:  # cold guesses (20 objective and 5 merit values each) only if needed
+        x_fallback = jax.lax.cond(
+            jnp.all(jnp.isfinite(x0)), lambda: jnp.zeros_like(x0),
+            lambda: jax.vmap(lambda p: initial_guess(p, structure))(params))
+    lane, st, finite_in, x0u = jax.vmap(
+        lambda p, x, m, pe, xf: init_lane(p, x, structure, s, m, pe, xf),
+        in_axes=(0, 0, None if multipliers is None else 0, None if penalty is None else 0, 0),
+    )(params, x0, multipliers, penalty, x_fallback)
+    step = lambda st, ln: step_lanes(st, ln, structure, s)
+    if pool == B:
+        st = jax.lax.while_loop(lambda st: jnp.any(is_active(st, s)),
+                                lambda st: step(st, lane),
+                                st)
+    else:
+        st = _pooled(st, lane, step, pool, s)
+    return jax.vmap(lambda st, ln, fi, x: finish_lane(st, ln, fi, x, structure, s))(
+        st, lane, finite_in, x0u)
+
+
+def _pooled(st_all: State, lane_all: Lane, step, C: int, s: SolverSettings) -> State:
+    """Run every lane of ``st_all`` (B lanes) to its end: for B <= LOCKSTEP_MAX, all B
+    in lockstep while more than half of them (and more than C) are active; then the
+    rest with C slots (see solve_lanes).
+
+    A step costs a fixed part (XLA's per-kernel overheads: ~0.13 ms on a 2-core CPU)
+    plus a part per lane, active or not.  Lockstep pays the fixed part once for all
+    lanes, and wastes the idle lanes' part; slots waste nothing but pay the fixed part
+    per C lanes.  So the common first iterations run in lockstep and the stragglers in
+    slots (a lane that needs 60 iterations does not hold B - 1 idle lanes for them).
+    Larger batches go to the slots at once: there lockstep cost more than it saved
+    (measured when a step still held a whole line search, so that every lane waited for
+    the slowest backtracking: 100 cold robots with 16 neighbours, 603 ms vs 281 ms; not
+    re-measured since a step is one evaluation per lane).
+    """
+    B = st_all.it.shape[0]
+    take = lambda tree, idx: jax.tree.map(lambda a: jnp.take(a, idx, axis=0, mode="clip"), tree)
+    if B <= LOCKSTEP_MAX:
+        many = max(C, B // 2)
+        st_all = jax.lax.while_loop(
+            lambda st: jnp.sum(is_active(st, s)) > many,
+            lambda st: step(st, lane_all), st_all)
+    # the lanes still active, in lane order; queue[j] for j < n_act
+    act = is_active(st_all, s)
+    n_act = jnp.sum(act, dtype=jnp.int32)
+    queue = jnp.argsort(~act, stable=True).astype(jnp.int32)
+    pos = jnp.arange(C, dtype=jnp.int32)  # slot k holds queue[pos[k]]
+    lane_of = lambda q: jnp.where(q < n_act, jnp.take(queue, q, mode="clip"), B)  # B: none
+
+    def cond(c):
+        _, _, _, _, nxt, sl_valid = c
+        return jnp.any(sl_valid) | (nxt < n_act)
+
+    def body(c):
+        st_all, sl, sl_st, sl_lane, nxt, sl_valid = c
+        sl_st = step(sl_st, sl_lane)  # inactive lanes come back as they were
+        fin = sl_valid & ~is_active(sl_st, s)
+        # finished lanes go home; free slots take the next queued lanes in order
+        st_all = jax.tree.map(
+            lambda a, u: a.at[jnp.where(fin, sl, B)].set(u, mode="drop"), st_all, sl_st)
+        free = fin | ~sl_valid
+        new = nxt + jnp.cumsum(free, dtype=jnp.int32) - 1
+        refill = free & (new < n_act)
+        sl = jnp.where(refill, lane_of(new), jnp.where(free, B, sl))
+        sl_valid = (sl_valid & ~fin) | refill
+        nxt = jnp.minimum(nxt + jnp.sum(free, dtype=jnp.int32), n_act)
+        sl_st = tree_where(refill, take(st_all, sl), sl_st)
+        sl_lane = tree_where(refill, take(lane_all, sl), sl_lane)
+        return st_all, sl, sl_st, sl_lane, nxt, sl_valid
+
+    sl0 = lane_of(pos)
+    c0 = (st_all, sl0, take(st_all, sl0), take(lane_all, sl0), jnp.minimum(C, n_act),
+          pos < n_act)
+    return jax.lax.while_loop(cond, body, c0)[0]
+
+
+LOCKSTEP_MAX = 32  # batches up to this size start in lockstep (_pooled)
+POOL_CPU = 2  # lanes per step on a CPU (measured on 2 cores: see default_pool)
+POOL_CPU_FEW = 12  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
+FEW_OTHERS = 16  # "few": at most this many other robots per NLP
+
+
+def default_pool(batch: int, backend: str | None = None, n_others: int | None = None) -> int:
+    """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (12)
+    lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
+    robots each (``n_others``: the other-robot slots of an NLP, masked ones included),
+    else POOL_CPU (2); B elsewhere.
+
+    Measured on a 2-core CPU (2026-12-01, one evaluation per step; `jaxplan bench
+    solver` NLPs, each batch split over the two CPU devices, medians of 10 interleaved in
+    one process): the 64 x 10 cold batch (9 others) took 218 / 215 / 200 / 190 / 205 ms
+    with pools 6 / 8 / 10 / 12 / 16 per device (an earlier, faster hour: 139 / 136 / 140
+    / 141 / 147 / 155 ms with 8 / 12 / 16 / 24 / 32 / 48); 100 robots with 16 neighbours
+    118 / 107 / 112 ms cold with 4 / 8 / 12 (warm 24 / 24 / 24) and 163 / 106 / 97 / 121 /
+    133 ms cold with 2 / 4 / 8 / 16 / 32 earlier; with all 99 others 310 / 332 / 457 /
+    619 ms cold with 2 / 8 / 16 / 32 (warm 58 / 72 / 81 / 166).  A step costs a fixed
+    part (XLA's per-kernel overheads) plus a part per lane: wide pools share the fixed
+    part, but once the per-lane arrays grow (many others) caches lose.  Warm 10-robot
+    replans: 2.2-2.5 ms for pools 2-10 (they start in lockstep, :func:`_pooled`)."""
+    backend = backend or jax.default_backend()
+    if backend != "cpu":
+        return batch
+    few = n_others is not None and n_others <= FEW_OTHERS and batch > LOCKSTEP_MAX
+    return max(1, min(batch, POOL_CPU_FEW if few else POOL_CPU))
+
+

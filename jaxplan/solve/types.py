@@ -1,0 +1,89 @@
+"""The solver's public data and the small helpers every part of it shares: status codes,
+:class:`SolverSettings`, :class:`Solution`, the constraint violation, zero multipliers
+and the sanitizing of a problem's parameters (docs/SOLVER.md).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxplan import nlp
+from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
+from jaxplan.trajectory import Trajectory
+
+CONVERGED, MAX_ITERS, NON_FINITE, INFEASIBLE = 0, 1, 2, 3
+STATUS_NAMES = {CONVERGED: "converged", MAX_ITERS: "max-iterations", NON_FINITE: "non-finite",
+                INFEASIBLE: "infeasible"}
+
+
+class SolverSettings(NamedTuple):
+    """Solver settings; all traced (changing them does not recompile)."""
+
+    max_iters: int = 60
+    tol_stationarity: float = 1e-10  # Newton decrement^2 / (1 + |L_A|)
+    tol_feasibility: float = 1e-8  # constraint units (m^2 for collisions)
+    tol_complementarity: float = 1e-8  # lam |g| / (1 + |L_A|)
+    inner_tol: float = 1e-4  # decrement^2 / (1 + |L_A|) that triggers a multiplier update
+    mu0: float = 10.0
+    mu_max: float = 1e10
+    mu_growth: float = 10.0
+    stall_ratio: float = 0.25
+    max_step_tau: float = 0.5
+    max_step_z: float = 4.0
+    armijo: float = 1e-4
+    max_backtracks: int = 30
+    kink_overshoot: float = 1.1  # backtracking past an AL branch crossing (step_lanes)
+    reg: float = 1e-13  # eigenvalue floor / max|eigenvalue| (direction)
+
+
+class Solution(NamedTuple):
+    """Result of one solve (leading batch axes under vmap).
+
+    x: (n_x,) decision vector (z, log T).  traj: the plan (S segments; coasts after T
+    unless ``rest``).  objective: f(x) without constraint terms.  status: int32 (see
+    module doc).  iterations: int32.  kkt_residual: |projected grad of L_A|_inf at the
+    last derivative evaluation (= Lagrangian gradient with lam~).  eq_violation: max
+    residual of the equality constraints (m, m/s, m/s^2).  ineq_violation: max(0, -g)
+    (m^2 for collisions, dimensionless for hard limits).  multipliers, penalty: warm-
+    start the next solve.  decrement: last Newton decrement^2.  Never NaN: objective,
+    kkt_residual, eq_violation, ineq_violation and decrement are +inf where they cannot
+    be evaluated (NON_FINITE lanes, e.g. a NaN weight or an overflowing horizon).
+    """
+
+    x: jax.Array
+    traj: Trajectory
+    objective: jax.Array
+    status: jax.Array
+    iterations: jax.Array
+    kkt_residual: jax.Array
+    eq_violation: jax.Array
+    ineq_violation: jax.Array
+    multipliers: Multipliers
+    penalty: jax.Array
+    decrement: jax.Array
+
+
+def max_violation(g: Multipliers):
+    return jnp.maximum(jnp.max(-g.collision, initial=0.0), jnp.max(-g.limits, initial=0.0))
+
+
+def zero_multipliers(params: NLPParams, structure: NLPStructure) -> Multipliers:
+    b = nlp.basis(structure)
+    Mo = params.other_mask.shape[-1]
+    return Multipliers(jnp.zeros((structure.n_col, Mo)), jnp.zeros((len(b.lim_s), 3)))
+
+
+def sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
+    """Replace non-finite own-state entries and t_min by 0; report whether all own-state
+    entries and scalars were finite."""
+    own = (params.p0, params.v0, params.a0, params.goal_p, params.goal_v, params.goal_a)
+    ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in own]))
+    scal = jax.tree.leaves((params.weights, params.limits, params.t_min, params.radius))
+    ok = ok & jnp.all(jnp.stack([jnp.isfinite(a) for a in scal]))
+    fz = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)
+    return params._replace(**{k: fz(getattr(params, k)) for k in
+                              ("p0", "v0", "a0", "goal_p", "goal_v", "goal_a", "t_min")}), ok
+
