@@ -16,9 +16,9 @@ import numpy as np
 # helper that builds a fleet's NLPParams (robot i's NLP sees the other M - 1 robots'
 # predictions).
 import jaxplan  # noqa: F401
-from jaxplan.benchmarks.solver import antipodal, fleet_params, limits, weights
 from jaxplan.nlp import NLPStructure
 from jaxplan.solve import STATUS_NAMES, SolverSettings, initial_guess_batch, solve_batch
+from jaxplan.testing import antipodal, fleet_params, limits, weights
 
 
 def main(argv=None):

@@ -7,9 +7,9 @@ import pytest
 
 import jaxplan  # noqa: F401
 from jaxplan import nlp
-from jaxplan.benchmarks.solver import random_problem, weights
 from jaxplan.nlp import Multipliers, NLPStructure
 from jaxplan.predict import quintic_coeffs
+from jaxplan.testing import random_problem, weights
 from jaxplan.trajectory import Trajectory
 
 

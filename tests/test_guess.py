@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from jaxplan import nlp, solve
-from jaxplan.benchmarks.solver import index_params, random_problem, stack_params
 from jaxplan.nlp import NLPStructure
+from jaxplan.testing import index_params, random_problem, stack_params
 
 
 @pytest.mark.parametrize("segments", [1, 3])
@@ -84,7 +84,7 @@ def test_initial_guess_head_on_pair_passes_on_the_right():
     """Two robots head-on, each predicting the other straight (a tie between right,
     left, up and down): both guesses swerve to their own right, so that the two guessed
     plans pass each other (the straight ones collide head-on)."""
-    from jaxplan.benchmarks.solver import fleet_params
+    from jaxplan.testing import fleet_params
 
     pos = np.array([[-3.0, 0.0, 1.5], [3.0, 0.0, 1.5]])
     P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), pos[::-1].copy())
@@ -110,8 +110,8 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
     free end, the shapes alpha z_rest(T) (a brute-force search over the same candidates
     agrees); a rest end keeps z = 0; an antipodal free-end fleet starts from the
     halfway shape with a shorter T than the free path's (the reason for the shapes)."""
-    from jaxplan.benchmarks.solver import antipodal, fleet_params
     from jaxplan.predict import predict_arrays
+    from jaxplan.testing import antipodal, fleet_params
 
     st = NLPStructure()
     free = NLPStructure(collision="none")

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from jaxplan import nlp, solve
-from jaxplan.benchmarks.solver import index_params, random_problem, stack_params
 from jaxplan.nlp import NLPStructure
 from jaxplan.reference import solve_slsqp
+from jaxplan.testing import index_params, random_problem, stack_params
 from jaxplan.trajectory import Trajectory
 
 B = 50

@@ -17,7 +17,7 @@ _SPLIT = """
 import jax, numpy as np
 import jaxplan
 from jaxplan import solve
-from jaxplan.benchmarks.solver import random_problem, stack_params
+from jaxplan.testing import random_problem, stack_params
 from jaxplan.nlp import NLPStructure
 assert len(jax.devices("cpu")) == 2
 L = solve.LOCKSTEP_MAX
@@ -175,7 +175,7 @@ _THREADS = """
 import threading, numpy as np, jax
 import jaxplan
 from jaxplan import solve
-from jaxplan.benchmarks.solver import random_problem, stack_params
+from jaxplan.testing import random_problem, stack_params
 from jaxplan.nlp import NLPStructure
 rng = np.random.default_rng(7)
 P = stack_params([random_problem(rng, n_others=int(rng.integers(2, 11)), rest=bool(i % 2))
