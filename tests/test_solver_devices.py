@@ -100,6 +100,19 @@ def _lapack_batches(lowered, kernels=("lapack_dsyevd",)):
     return out
 
 
+def test_lapack_constants_are_those_of_the_installed_jaxlib():
+    """solve.linalg's LAPACK_SPLIT_COST and EIGH_COST are copied from jaxlib's C++
+    (jaxlib/cpu/lapack_kernels.cc); a different jaxlib may have changed them."""
+    import jaxlib
+
+    pinned = solve.linalg.LAPACK_JAXLIB_VERSION
+    assert jaxlib.__version__ == pinned, (
+        f"jaxlib {jaxlib.__version__} is installed, but jaxplan/solve/linalg.py copied "
+        f"LAPACK_SPLIT_COST and EIGH_COST from jaxlib {pinned}: re-read kMinWorkPerTask and "
+        "eigh's cost_per_matrix in jaxlib/cpu/lapack_kernels.cc of the new version, update "
+        "them and LAPACK_JAXLIB_VERSION (and pyproject.toml's pin)")
+
+
 def test_cpu_eigh_calls_never_split_their_batch():
     """jaxlib 0.10's batched LAPACK kernels (eigh; Cholesky alike) split a batch of more
     than one matrix costing batch x 5 n^3 >= 2e5 over XLA's CPU thread pool and block a

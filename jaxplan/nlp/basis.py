@@ -215,4 +215,3 @@ def equality_residual(x, params: NLPParams, structure: NLPStructure):
         e = c[-1] @ b1[r] / h**r - end[r]
         res.append(e if r == 0 else jnp.where(params.rest, e, 0.0))
     return jnp.max(jnp.abs(jnp.stack(res)))
-

@@ -308,4 +308,3 @@ def merit_and_constraints(x, params, structure, kind, mult: Multipliers, mu):
     """(:func:`merit`, :func:`constraints`) at x in one pass (shared features and
     other-robot positions; what a line search needs at its accepted point)."""
     return evaluate_terms(x, params, structure, kind, mult, mu, with_g=True)
-

@@ -151,4 +151,3 @@ class Multipliers(NamedTuple):
 
     collision: jax.Array  # (Kc + n_coast, Mo)
     limits: jax.Array  # (Kh, 3)
-

@@ -366,5 +366,3 @@ def solve(params: NLPParams, x0, structure: NLPStructure,
     st = jax.lax.while_loop(lambda st: is_active(st, s)[0],
                             lambda st: step_lanes(st, lane1, structure, s), one(st0))
     return finish_lane(jax.tree.map(lambda a: a[0], st), lane, finite_in, x0, structure, s)
-
-

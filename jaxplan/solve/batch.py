@@ -96,5 +96,3 @@ def initial_guess_batch(params: NLPParams, structure: NLPStructure,
 def _initial_guess_jit(params, structure, shards):
     fn = jax.vmap(lambda p: initial_guess(p, structure))
     return fn(params) if shards == 1 else shard_lanes(fn, (params,), shards)
-
-

@@ -88,5 +88,3 @@ def shard_lanes(fn, args, shards: int):
     out = jax.shard_map(lambda a: fn(*a), mesh=mesh, in_specs=(PartitionSpec("lanes"),),
                         out_specs=PartitionSpec("lanes"), check_vma=False)(padded)
     return whole(jax.tree.map(lambda a: a[undeal], out))
-
-

@@ -191,9 +191,3 @@ def warm_start(prev: Trajectory, dt, params: NLPParams, structure: NLPStructure,
     if fallback is None:
         fallback = initial_guess(params, structure)
     return jnp.where(ok, x, fallback)
-
-
-# jaxlib 0.10's LAPACK kernels split a batch over XLA's CPU thread pool once it costs
-# batch * 5 n^3 >= 2e5 "FLOP" (eigh; jaxlib/cpu/lapack_kernels.cc, GetLapackBatchChunkSize)
-# and block a pool thread until the parts finish (ParallelBatchMap).  Two such
-# executions at once (two Python threads, or two CPU devices) can leave every pool

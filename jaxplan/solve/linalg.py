@@ -9,10 +9,18 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-# thread waiting: a deadlock at 0% CPU (seen: two threads solving two-segment NLPs).
-# So on a CPU eigh_safe never passes the kernel a batch that it would split.
-LAPACK_SPLIT_COST = 200_000  # the kernel's kMinWorkPerTask
-EIGH_COST = 5  # its cost_per_matrix of eigh, per n^3
+# On a CPU, jaxlib's batched LAPACK kernels (jaxlib/cpu/lapack_kernels.cc:
+# GetLapackBatchChunkSize, ParallelBatchMap) split a batch over XLA's CPU thread pool once
+# batch * cost_per_matrix >= kMinWorkPerTask (200,000; eigh's cost_per_matrix is 5 n^3)
+# and block a pool thread until the parts finish, so two such calls at once (two Python
+# threads, or two CPU devices) can leave every pool thread waiting: a deadlock at 0% CPU.
+# eigh_safe therefore never passes a CPU kernel a batch that it would split.  No public
+# API states these two numbers: they are copied from the C++ of jaxlib
+# LAPACK_JAXLIB_VERSION, and tests/test_solver_devices.py fails when another jaxlib is
+# installed (re-read them there) and checks the LAPACK call sizes the solver compiles.
+LAPACK_JAXLIB_VERSION = "0.10.2"
+LAPACK_SPLIT_COST = 200_000  # kMinWorkPerTask
+EIGH_COST = 5  # eigh's cost_per_matrix, per n^3
 UNROLL_EIGH = 8  # eigh_safe: up to this many calls unrolled, more in a loop
 
 
@@ -147,5 +155,3 @@ def directions(H, grad, need, reg):
         return i + c, d
 
     return jax.lax.while_loop(lambda carry: carry[0] < cnt, body, (jnp.int32(0), d))[1]
-
-

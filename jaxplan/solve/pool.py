@@ -139,5 +139,3 @@ def default_pool(batch: int, backend: str | None = None, n_others: int | None = 
         return batch
     few = n_others is not None and n_others <= FEW_OTHERS and batch > LOCKSTEP_MAX
     return max(1, min(batch, POOL_CPU_FEW if few else POOL_CPU))
-
-

@@ -86,4 +86,3 @@ def sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
     fz = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)
     return params._replace(**{k: fz(getattr(params, k)) for k in
                               ("p0", "v0", "a0", "goal_p", "goal_v", "goal_a", "t_min")}), ok
-
