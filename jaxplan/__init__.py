@@ -1,9 +1,15 @@
 """jaxplan: JAX-accelerated, batched decentralized multi-robot trajectory optimization.
 
-Importing the package enables float64 in JAX (DESIGN.md: float64 everywhere) and, unless
+The top-level API (docs/DESIGN.md): :func:`predict` (the closed-form minimum time-jerk
+prediction; ``jaxplan.predict`` is also the module, callable as the function),
+:class:`Trajectory`, and :func:`run` (an experiment from its config: jaxplan.experiment.run,
+imported on first use so that importing jaxplan stays light).  The NLP is in
+:mod:`jaxplan.nlp`, its solver in :mod:`jaxplan.solve`.
+
+Importing the package enables float64 in JAX (docs/DESIGN.md: float64 everywhere) and, unless
 JAX has already run something, makes one JAX CPU device per usable core (at most
 :data:`MAX_CPU_DEVICES`), so that large solver batches and sweeps can run their parts
-side by side (:func:`jaxplan.solver.default_shards`; one XLA program on a CPU runs its
+side by side (:func:`jaxplan.solve.default_shards`; one XLA program on a CPU runs its
 kernels one after another).  The environment variable ``JAXPLAN_CPU_DEVICES`` sets the
 count (1: off); a count already chosen through JAX (``jax_num_cpu_devices`` or
 ``XLA_FLAGS=--xla_force_host_platform_device_count``) is left as it is.  The default
@@ -67,3 +73,36 @@ def _set_cpu_devices() -> None:
 
 
 _set_cpu_devices()
+
+
+# the public names; imported after the CPU devices are set (they must come first)
+import sys as _sys  # noqa: E402
+import types as _types  # noqa: E402
+
+from jaxplan import predict as _predict_module  # noqa: E402
+from jaxplan.trajectory import Trajectory  # noqa: E402
+
+
+class _CallableModule(_types.ModuleType):
+    """The module jaxplan.predict, callable as its function :func:`jaxplan.predict.predict`,
+    so that both ``from jaxplan import predict; predict(...)`` and ``import jaxplan.predict``
+    (the module's other names) work."""
+
+    def __call__(self, *args, **kwargs):
+        return self.predict(*args, **kwargs)
+
+
+_predict_module.__class__ = _CallableModule
+predict = _sys.modules["jaxplan.predict"]
+
+
+def __getattr__(name: str):
+    """``jaxplan.run``: :func:`jaxplan.experiment.run`, imported on first use."""
+    if name == "run":
+        from jaxplan.experiment import run
+
+        return run
+    raise AttributeError(f"module 'jaxplan' has no attribute {name!r}")
+
+
+__all__ = ["Trajectory", "predict", "run"]

@@ -24,6 +24,7 @@ from jaxplan.trajectory import Trajectory
 
 # ---------------------------------------------------------------------- static basis
 def falling(i: int, r: int) -> int:
+    """The falling factorial i (i - 1) ... (i - r + 1): d^r/ds^r s^i = falling(i, r) s^(i - r)."""
     return factorial(i) // factorial(i - r) if i >= r else 0
 
 
@@ -169,6 +170,7 @@ def unpack(x, structure: NLPStructure):
 
 
 def pack(z, tau):
+    """z (N, nz), tau () -> x (n_x,) (the inverse of :func:`unpack`)."""
     return jnp.concatenate([jnp.ravel(z), jnp.reshape(tau, (1,))])
 
 

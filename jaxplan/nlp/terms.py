@@ -184,6 +184,7 @@ def _hard_local(y, lam, params, structure, mu):
 
 
 def smooth_time(x, params, structure, kind):
+    """The smoothness and time terms at x: q_dynm int |x'''|^2 dt (exact) + k_t T."""
     z, tau = unpack(x, structure)
     T = jnp.exp(tau)
     h = T / structure.segments

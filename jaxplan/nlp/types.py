@@ -88,14 +88,17 @@ class NLPStructure:
 
     @property
     def barrier(self) -> bool:
+        """Whether the objective has the sampled collision barrier."""
         return self.collision in ("barrier", "barrier+constraint")
 
     @property
     def paper(self) -> bool:
+        """Whether the collision term is the paper's (integrated exactly)."""
         return self.collision == "paper"
 
     @property
     def collision_constraints(self) -> bool:
+        """Whether the NLP has hard collision constraints (augmented Lagrangian)."""
         return self.collision in ("constraint", "barrier+constraint")
 
     @property
@@ -115,6 +118,7 @@ class NLPStructure:
 
     @property
     def n_x(self) -> int:
+        """Length of the decision vector x = (z (N, nz) flattened, tau)."""
         return self.n_dim * self.nz + 1
 
 

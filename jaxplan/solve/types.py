@@ -67,10 +67,12 @@ class Solution(NamedTuple):
 
 
 def max_violation(g: Multipliers):
+    """The largest violation max(0, -g) of the inequality constraints g >= 0."""
     return jnp.maximum(jnp.max(-g.collision, initial=0.0), jnp.max(-g.limits, initial=0.0))
 
 
 def zero_multipliers(params: NLPParams, structure: NLPStructure) -> Multipliers:
+    """Multipliers of zeros, shaped for one problem's constraints."""
     b = nlp.basis(structure)
     Mo = params.other_mask.shape[-1]
     return Multipliers(jnp.zeros((structure.n_col, Mo)), jnp.zeros((len(b.lim_s), 3)))
