@@ -1,4 +1,4 @@
-"""One replanning step of the whole fleet (MATH.md section 3).
+"""One replanning step of the whole fleet (docs/MATH.md section 3).
 
 Each robot i has its own *view* of every other robot j: the last state and goal it
 received from j (:class:`Views`, arrays (M, M, ...) indexed [observer, sender]).  By
@@ -16,8 +16,8 @@ somewhere there), and it is never taken to be known better than that stretch all
 half its chord plus a_max dt^2 / 8 (``floor``; measured before: a robot that froze at
 1.46 m/s stood 0.195 m from its last message, and a robot planning beside it at the
 planning distance collided, d / rho 0.963).  Each robot then
-builds its NLP (:mod:`jaxplan.costs`) and solves it; all robots' NLPs are solved in one
-vmapped call (:mod:`jaxplan.solver`).  Warm start: the robot's previous plan shifted by
+builds its NLP (:mod:`jaxplan.nlp`) and solves it; all robots' NLPs are solved in one
+vmapped call (:mod:`jaxplan.solve`).  Warm start: the robot's previous plan shifted by
 the replan period; the first plan starts from its own prediction.
 
 Goals another robot occupies: uncertainty never keeps a robot off its own goal.  Where
@@ -40,8 +40,8 @@ and meets its equalities (BEST_EFFORT: typically INFEASIBLE because it starts in
 another robot's planning radius, or another's prediction crosses its start; the solve
 minimized the violation against the newest predictions), its previous plan shifted to
 now while that has not run out (KEPT_PREVIOUS), a braking plan that brings it to rest
-(BRAKING).  Before this comparison any finite best-effort solve was flown, even one
-through a robot.  A solve is ACCEPTED when its plan is finite, its equality residual
+(BRAKING): so a finite best-effort solve through a robot is not flown when a fallback
+violates less.  A solve is ACCEPTED when its plan is finite, its equality residual
 is <= 1e-6 and its status is CONVERGED, or MAX_ITERS with every inequality
 satisfied to ``accept_violation``.  No NaN leaves this step.
 
@@ -87,8 +87,8 @@ class PlannerStructure:
     max_neighbors: 0 (every other robot is in each robot's NLP) or K >= 1: each robot's
     NLP holds only the K others that come nearest to its own closed-form prediction
     (:func:`nearest_neighbors`); the NLP's cost then grows with K, not with the fleet.
-    solver_pool: robots' NLPs stepped at once (:func:`jaxplan.solver.solve_lanes`);
-    0 = :func:`jaxplan.solver.default_pool` of the fleet size and of the others per NLP.
+    solver_pool: robots' NLPs stepped at once (:func:`jaxplan.solve.solve_lanes`);
+    0 = :func:`jaxplan.solve.default_pool` of the fleet size and of the others per NLP.
     """
 
     nlp: NLPStructure = field(default_factory=NLPStructure)
@@ -236,7 +236,9 @@ def resample(traj: Trajectory, segments: int, degree: int) -> Trajectory:
 
 def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v, rest,
            structure: PlannerStructure):
-    """One receding-horizon replan of the whole fleet.
+    """One receding-horizon replan of the whole fleet: the others' predictions from the
+    views (:func:`view_predictions`), the robots' NLPs (:func:`fleet_nlps`), their solve
+    (:func:`solve_fleet`) and each robot's plan or fallback (:func:`choose_plans`).
 
     Args:
         fp: FleetParams.  ps: PlanState from the previous replan (plans start at the
@@ -248,9 +250,24 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
         (new PlanState with every plan starting now, ReplanInfo).
     """
     M = p.shape[0]
-    nlp = structure.nlp
-    # predictions from each view, advanced to now by the message's age; a view older
-    # than STALE_AFTER_S is taken as a robot holding its last known position
+    preds, inflate, floor = view_predictions(fp, views)
+    params, goal_moved, idx, mult_prev = fleet_nlps(fp, ps, views, preds, inflate, floor, p, v,
+                                                    a, goal_p, goal_v, rest, structure)
+    sol = solve_fleet(fp, ps, params, mult_prev, structure)
+    plan, fallback, new_mult, new_pen = choose_plans(fp, ps, params, sol, p, v, a, structure)
+    new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32))
+    info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
+                      sol.ineq_violation, fallback.astype(jnp.int32),
+                      goal_moved & fp.robot_mask)
+    return new_ps, info
+
+
+def view_predictions(fp: FleetParams, views: Views):
+    """The others' predictions from each robot's views, advanced to now by the message's
+    age: (preds (M, M) Trajectory, inflate (M, M) m, floor (M, M) m).  A view older than
+    STALE_AFTER_S is taken as a robot holding its last known position; ``inflate`` is how
+    far the other could be from where its view puts it, ``floor`` the part of it that a
+    held robot is certainly within."""
     # an age from the future counts as 0, an unknown (NaN) age as infinitely old
     age = jnp.where(jnp.isnan(views.age), jnp.inf, jnp.maximum(views.age, 0.0))
     fresh = age <= STALE_AFTER_S
@@ -270,6 +287,17 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     # view puts it (unmodelled acceleration for a prediction, any motion for a hold)
     grow = jnp.where(fresh, 0.5 * fp.limits.a_max * age**2, fp.limits.v_max * age)
     inflate = jnp.maximum(jnp.minimum(grow, MAX_INFLATION), floor)
+    return preds, inflate, floor
+
+
+def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, floor, p, v, a,
+               goal_p, goal_v, rest, structure: PlannerStructure):
+    """The robots' NLPs (NLPParams, batch (M,)): occupied goals moved (:func:`free_goals`;
+    a robot whose goal moved gets a rest end there), the others in the NLPs' slots (all
+    of them in a fixed order, or the nearest ``structure.max_neighbors``).  Returns
+    (params, goal_moved (M,), idx (M, Mo) the other robot in each slot, the previous
+    multipliers remapped to those slots)."""
+    M = p.shape[0]
     eye = jnp.eye(M, dtype=bool)
     other_mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
     goal_p, inflate, goal_moved = free_goals(goal_p, p, preds.end_state()[0], fp.radius,
@@ -297,7 +325,16 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
         radius=fp.radius, weights=jax.tree.map(lambda w: jnp.broadcast_to(w, (M,)), fp.weights),
         limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
     )
+    return params, goal_moved, idx, mult_prev
 
+
+def solve_fleet(fp: FleetParams, ps: PlanState, params: NLPParams, mult_prev,
+                structure: PlannerStructure):
+    """The robots' NLPs solved from warm starts (the previous plans), cold guesses only
+    where a robot has no usable previous plan, in a pool of lanes (the Solution, batch
+    (M,))."""
+    M = params.radius.shape[0]
+    nlp = structure.nlp
     # warm starts; cold guesses (20 objective and 5 merit values each) only when some robot
     # has no usable previous plan
     nan_x = jnp.full((nlp.n_x,), jnp.nan)
@@ -310,13 +347,22 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     x0 = jnp.where(need_cold[:, None], x_cold, x_warm)
     mult = tree_where(ps.has_plan, mult_prev, jax.tree.map(jnp.zeros_like, mult_prev))
     pen = jnp.where(ps.has_plan, ps.penalty, fp.settings.mu0)
-    settings = fp.settings
     # x0 is finite (initial_guess is finite for any input): no fallback guess needed
     # a pool of lanes: the replan costs about the sum of the robots' iterations, not M
-    # times the largest (a 20-robot random-box run: 6.9 s instead of 22.8 s on 2 cores)
+    # times the largest (`jaxplan run experiments/benchmarks/random_box_20.toml` on a
+    # 2-core CPU: 6.9 s with the pool, 22.8 s with solver_pool = M)
     pool = structure.solver_pool or solve.default_pool(M, n_others=params.other_mask.shape[-1])
-    sol = solve.solve_lanes(params, x0, nlp, settings, mult, pen, x_fallback=x0, pool=pool)
+    return solve.solve_lanes(params, x0, nlp, fp.settings, mult, pen, x_fallback=x0, pool=pool)
 
+
+def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol, p, v, a,
+                 structure: PlannerStructure):
+    """Each robot's new plan: its solution where accepted, else the least violating of
+    its best-effort solution, its previous plan and a braking plan
+    (:func:`pick_fallback`); padding robots hold.  Returns (plan, fallback code (M,),
+    multipliers and penalty to warm-start the next replan)."""
+    M = p.shape[0]
+    nlp = structure.nlp
     finite = jnp.all(jnp.isfinite(sol.traj.coeffs), axis=(-1, -2, -3)) & jnp.all(
         jnp.isfinite(sol.traj.breaks), axis=-1)
     good_status = (sol.status == solve.CONVERGED) | (
@@ -326,35 +372,30 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     prev = ps.plan.shift(fp.dt)
     prev_ok = ps.has_plan & (prev.duration > 0) & jnp.all(
         jnp.isfinite(prev.coeffs), axis=(-1, -2, -3))
-    brake = braking_plan(p, v, a, limits_i.a_max, structure)
+    brake = braking_plan(p, v, a, params.limits.a_max, structure)
     usable = finite & (sol.eq_violation <= 1e-6) & (sol.status != solve.NON_FINITE)
-    sel = lambda c, x, y: jax.tree.map(
-        lambda u, w: jnp.where(c.reshape(c.shape + (1,) * (u.ndim - c.ndim)), u, w), x, y)
+
     # not accepted: the least violating of best effort, previous, braking (in that order
     # on ties); computed only when some robot needs it
     def choose():
-        viol = lambda tr: plan_violation(tr, params.others, params.radius, other_radius,
-                                         other_mask)
+        viol = lambda tr: plan_violation(tr, params.others, params.radius,
+                                         params.other_radius, params.other_mask)
         v_sol = jnp.where(usable, viol(sol.traj), jnp.inf)
         v_prev = jnp.where(prev_ok, viol(prev), jnp.inf)
         return pick_fallback(v_sol, v_prev, viol(brake))
 
     fallback = jnp.where(accepted, ACCEPTED, jax.lax.cond(
         jnp.any(~accepted & fp.robot_mask), choose, lambda: jnp.full((M,), BRAKING)))
-    plan = sel(accepted | (fallback == BEST_EFFORT), sol.traj,
-               sel(fallback == KEPT_PREVIOUS, prev, brake))
+    plan = tree_where(accepted | (fallback == BEST_EFFORT), sol.traj,
+                      tree_where(fallback == KEPT_PREVIOUS, prev, brake))
     # padding robots hold where they are
     hold = Trajectory.hold(p, nlp.degree, nlp.segments)
-    plan = sel(fp.robot_mask, plan, hold)
+    plan = tree_where(fp.robot_mask, plan, hold)
     fallback = jnp.where(fp.robot_mask, fallback, ACCEPTED)
-
-    new_mult = sel(accepted, sol.multipliers, jax.tree.map(jnp.zeros_like, sol.multipliers))
-    new_pen = jnp.where(accepted, sol.penalty, settings.mu0)
-    new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32))
-    info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
-                      sol.ineq_violation, fallback.astype(jnp.int32),
-                      goal_moved & fp.robot_mask)
-    return new_ps, info
+    new_mult = tree_where(accepted, sol.multipliers,
+                          jax.tree.map(jnp.zeros_like, sol.multipliers))
+    new_pen = jnp.where(accepted, sol.penalty, fp.settings.mu0)
+    return plan, fallback, new_mult, new_pen
 
 
 def pick_fallback(v_sol, v_prev, v_brake, tol: float = 1e-6):

@@ -1,4 +1,4 @@
-"""Closed-form minimum time-jerk prediction (MATH.md section 1).
+"""Closed-form minimum time-jerk prediction (docs/MATH.md section 1).
 
 Every robot predicts each other robot's trajectory from the state and goal it last
 received: the minimum of  J = integral_0^T (|jerk|^2 + w) dt  over quintic trajectories
@@ -77,7 +77,7 @@ def _axes(x):
 def cost_quartic(p0, v0, a0, pf, vf, af, full):
     """Coefficients q (..., 5) with J(T) = w T + (q0 + q1 T + ... + q4 T^4) / T^5.
 
-    MATH.md 1a (free end: 20 |D - v0 T - a0 T^2/2|^2) and 1b (fully defined end),
+    docs/MATH.md 1a (free end: 20 |D - v0 T - a0 T^2/2|^2) and 1b (fully defined end),
     summed over the last (spatial) axis of the inputs (..., N).  ``full`` (...,) bool
     selects the fully defined end state.
     """
@@ -310,7 +310,7 @@ def predict_arrays(p0, v0, a0, pf, vf, af, full, w=1.0) -> Trajectory:
 
 
 def predict(p0, v0, a0, goal, *, end: str = "free", goal_velocity=None, time_weight=1.0):
-    """Closed-form minimum time-jerk trajectories from states to goals (MATH.md 1).
+    """Closed-form minimum time-jerk trajectories from states to goals (docs/MATH.md 1).
 
     Args:
         p0, v0, a0: (..., N) start position (m), velocity (m/s), acceleration (m/s^2).

@@ -1,10 +1,10 @@
-"""The RotorS vehicle table (shared/ROBOTS.md): Hummingbird, Firefly and Neo 11.
+"""The RotorS vehicle table (docs/ROBOTS.md): Hummingbird, Firefly and Neo 11.
 
 Everything here is plain Python / NumPy data; nothing is traced.  Units are SI:
 kg, kg m^2, m, rad/s, s, N.
 
 ``VEHICLES[name]`` is a frozen :class:`Vehicle`.  The collision radius is the arm
-length plus the rotor radius (ROBOTS.md, "computed").  The planner's default dynamic
+length plus the rotor radius (docs/ROBOTS.md, "computed").  The planner's default dynamic
 limits (``v_max``, ``a_max``, ``j_max``) are the paper's 2 m/s top speed and
 conservative acceleration and jerk limits well inside each vehicle's thrust envelope;
 a config's ``[limits]`` table overrides them.
@@ -81,7 +81,7 @@ class Vehicle:
     def allocation_matrix(self) -> np.ndarray:
         """(4, R) matrix mapping rotor speeds squared w_i^2 to (roll, pitch, yaw torque, thrust).
 
-        Column i is [l k_f sin th_i, -l k_f cos th_i, -d_i k_f kappa, k_f] (ROBOTS.md).
+        Column i is [l k_f sin th_i, -l k_f cos th_i, -d_i k_f kappa, k_f] (docs/ROBOTS.md).
         """
         th = np.deg2rad(np.asarray(self.rotor_angles_deg, dtype=np.float64))
         d = np.asarray(self.rotor_directions, dtype=np.float64)

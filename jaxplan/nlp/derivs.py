@@ -292,7 +292,7 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
     the samples) is formed once, and the terms are laid out as in :func:`merit_derivs`
     (components first): on the benchmark's NLPs (9 others) five shapes cost about what
     one :func:`merit` call costs, ~4x less than a vmap of it over the five points (used
-    by :func:`jaxplan.solver.initial_guess`)."""
+    by :func:`jaxplan.solve.initial_guess`)."""
     b = basis(structure)
     T = jnp.exp(tau)
     h = T / structure.segments

@@ -4,7 +4,7 @@ in JAX: one lane's :func:`init_lane`, :func:`step_lanes` and :func:`finish_lane`
 
 Method (per problem; ``solve`` is pure, jit- and vmap-able)
 ------------------------------------------------------------
-* Variables: x = (z, tau = log T) of :mod:`jaxplan.costs`.  The equality constraints
+* Variables: x = (z, tau = log T) of :mod:`jaxplan.nlp`.  The equality constraints
   (start state, C^2 joints, end state) are eliminated exactly by the null-space
   parametrization c = P e(h) + Z z, i.e. each step's KKT system is solved in its
   reduced (null-space) form; they hold to rounding at every iterate.
@@ -13,7 +13,7 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
   (lam <- max(0, lam - mu g)) whenever the inner problem is nearly solved (Newton
   decrement <= ``inner_tol``); the penalty mu grows (x ``mu_growth``) only when the
   violation did not shrink by ``stall_ratio`` since the previous update.
-* Step: exact Hessian of L_A (structured autodiff, costs.merit_derivs), eigenvalues
+* Step: exact Hessian of L_A (structured autodiff, jaxplan.nlp.merit_derivs), eigenvalues
   floored at |lambda| >= reg * max|lambda| (eigh; negative curvature flipped), so the
   step is a descent direction (where the Hessian is provably positive definite with no
   eigenvalue below that floor, the same step by Cholesky: :func:`_directions`); T >=

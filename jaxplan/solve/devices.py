@@ -1,7 +1,7 @@
 """Placing a batch on devices: :func:`default_shards` (how many CPU devices a batch is
 split over), :func:`shard_lanes` (the split itself) and :func:`as_strong_dtypes` (the
 dtype coercion that lets Python scalars reuse a compiled program).  docs/SOLVER.md
-("CPU devices") gives the measurements.
+("Batches: CPU devices") gives the measurements.
 """
 
 from __future__ import annotations
@@ -43,15 +43,14 @@ def default_shards(batch: int, backend: str | None = None) -> int:
     Elsewhere 1 (a GPU steps all lanes of a batch at once).
 
     Measured on a 2-core CPU (2 devices against 1, the `jaxplan bench solver` NLPs,
-    medians of 5; 2026-12-01, after eigh_safe): in one process the 64 x 10 cold batch 1.46x
-    faster, its first 64 NLPs 1.37x, 100 robots with 16 neighbours 1.48x warm and 1.63x
-    cold, with all 99 others 1.27x warm; in separate processes (JAXPLAN_CPU_DEVICES=1
-    against the default, twice) the batch 1.46x / 1.22x, 100 cold robots with 16
-    neighbours 2.4x / 1.5x, 100 warm robots with all others 1.50x / 1.56x.  Warm
-    10-robot replans stay on one device (split, measured earlier the same day: 0.75x,
-    too little work per device).
+    medians of 5): in one process the 64 x 10 cold batch 1.46x faster, its first 64 NLPs
+    1.37x, 100 robots with 16 neighbours 1.48x warm and 1.63x cold, with all 99 others
+    1.27x warm; in separate processes (JAXPLAN_CPU_DEVICES=1 against the default, twice)
+    the batch 1.46x / 1.22x, 100 cold robots with 16 neighbours 2.4x / 1.5x, 100 warm
+    robots with all others 1.50x / 1.56x.  Warm 10-robot replans stay on one device
+    (split: 0.75x, too little work per device).
     One XLA program on a CPU runs its kernels one after another; two devices run their
-    halves side by side.  (Before eigh_safe, two devices could deadlock in LAPACK.)"""
+    halves side by side (safe in LAPACK only through :func:`jaxplan.solve.linalg.eigh_safe`)."""
     backend = backend or jax.default_backend()
     if backend != "cpu" or batch <= LOCKSTEP_MAX:
         return 1

@@ -1,6 +1,6 @@
 """Starting points of a solve: :func:`initial_guess` (cold: the closed-form prediction,
 a horizon grid, a swerve stage), :func:`swerve_guess` and :func:`warm_start` (the previous
-plan shifted and re-fitted).  docs/SOLVER.md ("cold start") gives the measurements behind
+plan shifted and re-fitted).  docs/SOLVER.md ("Starting points") gives the measurements behind
 the choices.
 """
 
@@ -42,7 +42,7 @@ def rest_shape(structure: NLPStructure) -> np.ndarray:
 def initial_guess(params: NLPParams, structure: NLPStructure, swerve: bool = True) -> jax.Array:
     """x0 from the robot's own closed-form minimum time-jerk prediction to its goal.
 
-    z = 0 is exactly the minimum-jerk path for a given T (costs module doc).  T starts
+    z = 0 is exactly the minimum-jerk path for a given T (:mod:`jaxplan.nlp`).  T starts
     from the prediction's optimal horizon with time weight k_t / q_dynm and is then
     chosen on a geometric grid (x0.5 .. x8, and >= t_min) to minimize the objective
     without collision terms (smoothness + time + soft limits), so that x0 does not

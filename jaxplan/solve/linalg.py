@@ -1,7 +1,7 @@
 """The Newton directions of a batch of lanes: Cholesky where it settles the step, else
 an eigendecomposition with floored eigenvalues (:func:`directions`), and the LAPACK
 batching that keeps those calls safe on a CPU (:func:`lapack_safe`; docs/SOLVER.md,
-"LAPACK chunking").
+"LAPACK and threads").
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ def lapack_safe(fn, per: int = 1):
     Nested vmaps (``jax.vmap`` of :func:`solve`, whose steps vmap over a batch of one
     lane) stay safe too: the batched function each level forms is itself made safe, with
     ``per`` the matrices one of its calls already holds, so an outer level chunks its
-    batch by eigh_chunk(n) // per (before, the outer vmap batched the inner level's
-    LAPACK call whole: a vmapped solve of 640 lanes hung at 0% CPU)."""
+    batch by eigh_chunk(n) // per (an outer vmap that batched the inner level's LAPACK
+    call whole hung a vmapped solve of 640 lanes at 0% CPU)."""
     safe = jax.custom_batching.custom_vmap(fn)
 
     @safe.def_vmap
@@ -88,10 +88,10 @@ def direction(H, grad, reg):
 
     reg = 1e-13 (~450 x the float64 epsilon, so a floored eigenvalue is still well above
     eigh's rounding).  With large penalties (mu ~ 1e9-1e10, where warm-started fleets
-    with close encounters go) the largest eigenvalue is ~1e12, and the former 1e-10
-    floored the objective's own curvature: Newton degraded to linear convergence and
-    lanes ran to max_iters (bench, 100 robots: 1-4 such lanes per replan, none with
-    1e-12..1e-14, and 2x fewer iterations)."""
+    with close encounters go) the largest eigenvalue is ~1e12, and a floor of 1e-10
+    floors the objective's own curvature: Newton degrades to linear convergence and
+    lanes run to max_iters (`jaxplan bench solver`, 100 robots: 1-4 such lanes per
+    replan with 1e-10, none with 1e-12..1e-14, and 2x fewer iterations)."""
     w, V = eigh_safe(H)
     wa = jnp.abs(w)
     floor = reg * jnp.max(wa) + 1e-300
@@ -118,8 +118,8 @@ def newton_cholesky(H, grad, reg):
     settled = pd & (jnp.sum(Li * Li) * jnp.sqrt(jnp.sum(H * H)) * reg <= 1.0)
     # H^-1 = L^-T L^-1 with L^-1 at hand: two small products instead of two more LAPACK
     # calls (triangular solves); steps within ~1e-14 of the solves', the same iterations
-    # on the benchmark's batch, which took 1.02-1.09x less time (interleaved A/B, 20 and
-    # 24 rounds, 2026-12-03)
+    # on the benchmark's batch, which takes 1.02-1.09x less time (`jaxplan bench solver`,
+    # interleaved A/B, 20 and 24 rounds)
     d = -(Li.T @ (Li @ grad))
     return jnp.where(settled & jnp.all(jnp.isfinite(d)), d, 0.0), settled & jnp.all(
         jnp.isfinite(d))

@@ -1,6 +1,6 @@
 """The lane pool: :func:`solve_lanes` steps a pool of lanes at a time and hands each
 finished slot the next lane; :func:`default_pool` picks the pool size (docs/SOLVER.md,
-"lane pool").
+"Batches: the lane pool").
 """
 
 from __future__ import annotations
@@ -66,9 +66,8 @@ def _pooled(st_all: State, lane_all: Lane, step, C: int, s: SolverSettings) -> S
     per C lanes.  So the common first iterations run in lockstep and the stragglers in
     slots (a lane that needs 60 iterations does not hold B - 1 idle lanes for them).
     Larger batches go to the slots at once: there lockstep cost more than it saved
-    (measured when a step still held a whole line search, so that every lane waited for
-    the slowest backtracking: 100 cold robots with 16 neighbours, 603 ms vs 281 ms; not
-    re-measured since a step is one evaluation per lane).
+    (100 cold robots with 16 neighbours, 603 ms vs 281 ms, measured with a step that
+    held a whole line search, so that every lane waited for the slowest backtracking).
     """
     B = st_all.it.shape[0]
     take = lambda tree, idx: jax.tree.map(lambda a: jnp.take(a, idx, axis=0, mode="clip"), tree)
@@ -123,14 +122,14 @@ def default_pool(batch: int, backend: str | None = None, n_others: int | None = 
     robots each (``n_others``: the other-robot slots of an NLP, masked ones included),
     else POOL_CPU (2); B elsewhere.
 
-    Measured on a 2-core CPU (2026-12-01, one evaluation per step; `jaxplan bench
-    solver` NLPs, each batch split over the two CPU devices, medians of 10 interleaved in
-    one process): the 64 x 10 cold batch (9 others) took 218 / 215 / 200 / 190 / 205 ms
-    with pools 6 / 8 / 10 / 12 / 16 per device (an earlier, faster hour: 139 / 136 / 140
-    / 141 / 147 / 155 ms with 8 / 12 / 16 / 24 / 32 / 48); 100 robots with 16 neighbours
-    118 / 107 / 112 ms cold with 4 / 8 / 12 (warm 24 / 24 / 24) and 163 / 106 / 97 / 121 /
-    133 ms cold with 2 / 4 / 8 / 16 / 32 earlier; with all 99 others 310 / 332 / 457 /
-    619 ms cold with 2 / 8 / 16 / 32 (warm 58 / 72 / 81 / 166).  A step costs a fixed
+    Measured on a 2-core CPU (`jaxplan bench solver` NLPs, each batch split over the two
+    CPU devices, medians of 10 interleaved in one process): the 64 x 10 cold batch (9
+    others) took 218 / 215 / 200 / 190 / 205 ms with pools 6 / 8 / 10 / 12 / 16 per
+    device (in another run 139 / 136 / 140 / 141 / 147 / 155 ms with 8 / 12 / 16 / 24 /
+    32 / 48); 100 robots with 16 neighbours 118 / 107 / 112 ms cold with 4 / 8 / 12 (warm
+    24 / 24 / 24), in another run 163 / 106 / 97 / 121 / 133 ms cold with 2 / 4 / 8 / 16
+    / 32; with all 99 others 310 / 332 / 457 / 619 ms cold with 2 / 8 / 16 / 32 (warm 58
+    / 72 / 81 / 166).  A step costs a fixed
     part (XLA's per-kernel overheads) plus a part per lane: wide pools share the fixed
     part, but once the per-lane arrays grow (many others) caches lose.  Warm 10-robot
     replans: 2.2-2.5 ms for pools 2-10 (they start in lockstep, :func:`_pooled`)."""
