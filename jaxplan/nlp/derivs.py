@@ -333,6 +333,59 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
     return val
 
 
+def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, mu,
+                      with_g: bool, others: OthersPrep | None):
+    """(value, gradient, Hessian, g_collision) of the sampled collision terms (barrier
+    and the AL terms of the collision constraints) for :func:`merit_derivs`; g_collision
+    (n_col, Mo) the constraints where ``with_g`` and the mode has them, else ones."""
+    N = structure.n_dim
+    Mo = params.other_mask.shape[-1]
+    gc = jnp.ones((structure.n_col, Mo), x.dtype)
+    op = prepare_others(params.others, params.other_mask) if others is None else others
+    s, off, w, on = collision_rows(params, structure)
+    jets = _col_jets(params, structure, kind, tau)
+    (bp, C), _, _ = jets
+    p = bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)  # (N, K)
+    o0, o1, o2 = others_jet(op, T * s + off, 2)  # (N, Mo, K)
+    X = p[:, None, :] - o0
+    u = -s * o1
+    ww = -(s * s) * o2
+    r = jnp.sum(X * X, axis=0)  # (Mo, K)
+    mask = params.other_mask[:, None]
+    rho = (params.radius + params.other_radius)[:, None]
+    wt = params.weights
+    zero = (jnp.zeros_like(r),) * 3
+    if structure.barrier:
+        af = lambda rr: jnp.where(
+            mask, wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
+        av, a1, a2 = _elementwise_derivs(af, r)
+    else:
+        av, a1, a2 = zero
+    if structure.collision_constraints:
+        use = mask & on[None, :]
+        lam = mult.collision.T
+        bf = lambda rr: jnp.where(use, al_term(rr - rho * rho, lam, mu), 0.0)
+        bv, b1, b2 = _elementwise_derivs(bf, r)
+        if with_g:
+            gc = jnp.where(use, r - rho * rho, 1.0).T
+    else:
+        bv, b1, b2 = zero
+    cd = T * a1 + b1
+    cdd = T * a2 + b2
+    Xu = jnp.sum(X * u, axis=0)
+    v = jnp.sum(T * av + bv)
+    Gp = 2.0 * jnp.sum(cd * X, axis=1)
+    GT = jnp.sum(2.0 * cd * Xu + av, axis=0)
+    eye = jnp.eye(N, dtype=x.dtype)[:, :, None]
+    Hpp = (4.0 * jnp.sum(cdd * X[:, None] * X[None, :], axis=2)
+           + 2.0 * jnp.sum(cd, axis=0) * eye)
+    HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1) * X + 2.0 * cd * u, axis=1)
+    q = jnp.sum(u * u + X * ww, axis=0)
+    HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * q + 4.0 * a1 * Xu, axis=0)
+    g, H = _chain(z, T, jets, Gp[None], Hpp[None], HpT[None], GT, HTT)
+    return v, g, H, gc
+
+
 def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool = False,
                  others: OthersPrep | None = None):
     """(value, gradient (n,), Hessian (n, n)) of the augmented Lagrangian at x; with
@@ -344,7 +397,6 @@ def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool
     per-sample blocks; the other robots' jets come from ``others`` (formed once per solve
     by :func:`prepare_others`; here when None)."""
     b = basis(structure)
-    N = structure.n_dim
     Mo = params.other_mask.shape[-1]
     z, tau = unpack(x, structure)
     T = jnp.exp(tau)
@@ -358,48 +410,8 @@ def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool
         v, g, H = _value_grad_hessian(lambda xx: paper_collision(xx, params, structure, kind), x)
         tv, tg, tH = tv + v, tg + g, tH + H
     if has_sampled_collision(structure):
-        op = prepare_others(params.others, params.other_mask) if others is None else others
-        s, off, w, on = collision_rows(params, structure)
-        jets = _col_jets(params, structure, kind, tau)
-        (bp, C), _, _ = jets
-        p = bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)  # (N, K)
-        o0, o1, o2 = others_jet(op, T * s + off, 2)  # (N, Mo, K)
-        X = p[:, None, :] - o0
-        u = -s * o1
-        ww = -(s * s) * o2
-        r = jnp.sum(X * X, axis=0)  # (Mo, K)
-        mask = params.other_mask[:, None]
-        rho = (params.radius + params.other_radius)[:, None]
-        wt = params.weights
-        zero = (jnp.zeros_like(r),) * 3
-        if structure.barrier:
-            af = lambda rr: jnp.where(
-                mask, wt.q_obs * w * jnp.exp(-wt.k_p * (jnp.sqrt(rr + DIST_EPS2) - rho)), 0.0)
-            av, a1, a2 = _elementwise_derivs(af, r)
-        else:
-            av, a1, a2 = zero
-        if structure.collision_constraints:
-            use = mask & on[None, :]
-            lam = mult.collision.T
-            bf = lambda rr: jnp.where(use, al_term(rr - rho * rho, lam, mu), 0.0)
-            bv, b1, b2 = _elementwise_derivs(bf, r)
-            if with_g:
-                gc = jnp.where(use, r - rho * rho, 1.0).T
-        else:
-            bv, b1, b2 = zero
-        cd = T * a1 + b1
-        cdd = T * a2 + b2
-        Xu = jnp.sum(X * u, axis=0)
-        v = jnp.sum(T * av + bv)
-        Gp = 2.0 * jnp.sum(cd * X, axis=1)
-        GT = jnp.sum(2.0 * cd * Xu + av, axis=0)
-        eye = jnp.eye(N, dtype=x.dtype)[:, :, None]
-        Hpp = (4.0 * jnp.sum(cdd * X[:, None] * X[None, :], axis=2)
-               + 2.0 * jnp.sum(cd, axis=0) * eye)
-        HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1) * X + 2.0 * cd * u, axis=1)
-        q = jnp.sum(u * u + X * ww, axis=0)
-        HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * q + 4.0 * a1 * Xu, axis=0)
-        g, H = _chain(z, T, jets, Gp[None], Hpp[None], HpT[None], GT, HTT)
+        v, g, H, gc = _collision_derivs(x, z, T, tau, params, structure, kind, mult, mu, with_g,
+                                        others)
         tv, tg, tH = tv + v, tg + g, tH + H
     if structure.hard_limits:
         jh = _lim_jets(params, structure, "lim", tau)
