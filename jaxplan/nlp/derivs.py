@@ -33,8 +33,8 @@ _E_POW = np.array([0, 1, 2, 0, 1, 2])  # the power of h in each row of boundary_
 
 
 def _smooth_time_derivs(x, params, structure, kind):
-    """(value, gradient, Hessian) of :func:`smooth_time` in closed form: with h = T / S
-    and e(h) = E diag(h^k) (boundary_vector), the jerk integral is
+    """(value, gradient, Hessian) of :func:`jaxplan.nlp.terms.smooth_time` in closed form: with
+    h = T / S and e(h) = E diag(h^k) (boundary_vector), the jerk integral is
     sum_ij W_ij h^(k_i + k_j - 5) + h^-5 sum q z^2, W = M * (E E^T); each power of h has
     tau derivatives m h^m and m^2 h^m."""
     z, tau = unpack(x, structure)
@@ -94,8 +94,8 @@ class OthersPrep(NamedTuple):
 
 
 def prepare_others(others: Trajectory, mask) -> OthersPrep:
-    """:class:`OthersPrep` of the others' predictions (what :func:`others_derivs` reads
-    at every call, cleaned and scaled once)."""
+    """:class:`OthersPrep` of the others' predictions (what
+    :func:`jaxplan.nlp.terms.others_derivs` reads at every call, cleaned and scaled once)."""
     c = others.coeffs
     b = others.breaks
     ok = mask & jnp.all(jnp.isfinite(c), axis=(-1, -2, -3)) & jnp.all(jnp.isfinite(b), axis=-1)
@@ -118,8 +118,8 @@ def prepare_others(others: Trajectory, mask) -> OthersPrep:
 
 def others_jet(op: OthersPrep, t, R: int):
     """The others' derivatives 0..R at times t (K,): a list of (N, Mo, K) arrays (what
-    :func:`others_derivs` gives, laid out components first and samples last).  After an
-    other's end it holds (coast False) or coasts (coast True)."""
+    :func:`jaxplan.nlp.terms.others_derivs` gives, laid out components first and samples last).
+    After an other's end it holds (coast False) or coasts (coast True)."""
     So = op.c[0].shape[1]
     tt = t[None, :]
     To = op.end[:, None]
@@ -286,13 +286,13 @@ def _col_jets(params, structure, kind, tau):
 
 def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
                  others: OthersPrep | None = None):
-    """:func:`merit` at the C points x = (z, tau) for the shapes zs (C, N, nz) at ONE
-    horizon tau: the values (C,), equal to a vmap of :func:`merit` over the points to
-    rounding.  What depends on tau alone (boundary terms, the other robots' positions at
-    the samples) is formed once, and the terms are laid out as in :func:`merit_derivs`
+    """:func:`jaxplan.nlp.terms.merit` at the C points x = (z, tau) for the shapes zs (C, N, nz)
+    at ONE horizon tau: the values (C,), equal to a vmap of :func:`jaxplan.nlp.terms.merit` over
+    the points to rounding.  What depends on tau alone (boundary terms, the other robots'
+    positions at the samples) is formed once, and the terms are laid out as in :func:`merit_derivs`
     (components first): on the benchmark's NLPs (9 others) five shapes cost about what
-    one :func:`merit` call costs, ~4x less than a vmap of it over the five points (used
-    by :func:`jaxplan.solve.initial_guess`)."""
+    one :func:`jaxplan.nlp.terms.merit` call costs, ~4x less than a vmap of it over the five
+    points (used by :func:`jaxplan.solve.initial_guess`)."""
     b = basis(structure)
     T = jnp.exp(tau)
     h = T / structure.segments
@@ -389,8 +389,8 @@ def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, 
 def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool = False,
                  others: OthersPrep | None = None):
     """(value, gradient (n,), Hessian (n, n)) of the augmented Lagrangian at x; with
-    ``with_g`` also the inequality constraints g(x) (as :func:`constraints`, from the
-    same features and other-robot positions: what the solver needs at a trial point).
+    ``with_g`` also the inequality constraints g(x) (as :func:`jaxplan.nlp.terms.constraints`,
+    from the same features and other-robot positions: what the solver needs at a trial point).
 
     By the features' block structure (module doc): each axis's features are affine in
     that axis's shape variables, so the chain rule (:func:`_chain`) runs on small

@@ -58,8 +58,8 @@ class NLPStructure:
         n_limit_samples: uniform sample times in (0, T] for the hard limits.
         n_coast_samples: collision constraints on a FREE-end plan's coast after T (what
             it flies if nothing replaced it: p(T) + v(T) t), at t = t_c k / n for
-            k = 1..n, with t_c = :func:`coast_time` (long enough to stop from v_max).
-            Only in the modes with collision constraints; no barrier there; inactive on
+            k = 1..n, with t_c = :func:`jaxplan.nlp.terms.coast_time` (long enough to stop from
+            v_max). Only in the modes with collision constraints; no barrier there; inactive on
             rest lanes (their coast is a hold, checked by the last samples).  0 = off
             (the paper's NLP).
     """

@@ -16,9 +16,9 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
 * Step: exact Hessian of L_A (structured autodiff, jaxplan.nlp.merit_derivs), eigenvalues
   floored at |lambda| >= reg * max|lambda| (eigh; negative curvature flipped), so the
   step is a descent direction (where the Hessian is provably positive definite with no
-  eigenvalue below that floor, the same step by Cholesky: :func:`_directions`); T >=
-  t_min by projection (tau at its bound with an
-  outward gradient is held); the step is capped (|dtau| <= max_step_tau, |dz|_inf <=
+  eigenvalue below that floor, the same step by Cholesky:
+  :func:`jaxplan.solve.linalg.directions`); T >= t_min by projection (tau at its bound
+  with an outward gradient is held); the step is capped (|dtau| <= max_step_tau, |dz|_inf <=
   max_step_z); backtracking Armijo line search on L_A (a failed trial is cut back to
   just past the first constraint it pushed into the steep AL branch, else halved).
 * Stopping: Newton decrement^2 <= tol_stationarity (1 + |L_A|), max violation <=
@@ -26,7 +26,7 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
   lam~ = max(0, lam - mu g) (the multiplier estimate whose Lagrangian gradient is the
   AL gradient).  A bounded loop (``max_iters``); per-lane status, never raised.
 
-Evaluations: a solver step (:func:`_step`) is ONE evaluation of L_A's value,
+Evaluations: a solver step (:func:`step_lanes`) is ONE evaluation of L_A's value,
 derivatives and constraints per lane, at the lane's next point: its iterate, or a
 line-search trial.  An accepted trial's derivatives start the next iteration (unless
 its multipliers change there), so the usual iteration (derivatives at x, then merit
@@ -35,11 +35,12 @@ costs derivatives that go unused.  In exchange no lane ever waits for another's
 backtracking: under vmap a nested line-search loop runs every lane for as many trials
 as the slowest needs.  The iterates are those of the textbook loop above.
 
-Batches: :func:`solve_batch` / :func:`solve_lanes` step a pool of lanes at a time and
-hand each finished slot the next lane, so a batch costs about the sum of its lanes'
-evaluations rather than B times the largest (each lane's iterations are those of
-:func:`solve`).  :func:`solve_differentiable`: the solution differentiable with respect
-to the weights by implicit differentiation (jaxopt ``custom_root``).
+Batches: :func:`jaxplan.solve.batch.solve_batch` / :func:`jaxplan.solve.pool.solve_lanes`
+step a pool of lanes at a time and hand each finished slot the next lane, so a batch
+costs about the sum of its lanes' evaluations rather than B times the largest (each
+lane's iterations are those of :func:`solve`).
+:func:`jaxplan.solve.implicit.solve_differentiable`: the solution differentiable with
+respect to the weights by implicit differentiation (jaxopt ``custom_root``).
 
 Status codes (``Solution.status``, int32):
     0 CONVERGED      all three tests passed.

@@ -41,8 +41,8 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
                 settings: SolverSettings = SolverSettings(),
                 multipliers: Multipliers | None = None, penalty=None,
                 pool: int | None = None, shards: int | None = None) -> Solution:
-    """:func:`solve` over all leading axes of x0 (..., n_x) and params (same leading
-    axes), jitted; ``settings`` is shared.  x0 = None: a cold start, every problem from
+    """:func:`jaxplan.solve.alsqp.solve` over all leading axes of x0 (..., n_x) and params (same
+    leading axes), jitted; ``settings`` is shared.  x0 = None: a cold start, every problem from
     its :func:`initial_guess`, formed in the same compiled program as the solve (each
     CPU device forms its own problems' guesses: the same guesses as
     :func:`initial_guess_batch`, without a second call and its wait for every device).

@@ -37,8 +37,8 @@ def as_strong_dtypes(tree):
 
 
 def default_shards(batch: int, backend: str | None = None) -> int:
-    """How many devices :func:`solve_batch` splits a batch of ``batch`` NLPs over: on a
-    CPU with several devices (``jax.devices("cpu")``; jaxplan makes one per core, see
+    """How many devices :func:`jaxplan.solve.batch.solve_batch` splits a batch of ``batch`` NLPs
+    over: on a CPU with several devices (``jax.devices("cpu")``; jaxplan makes one per core, see
     :mod:`jaxplan`), all of them for a batch of more than LOCKSTEP_MAX NLPs, else 1.
     Elsewhere 1 (a GPU steps all lanes of a batch at once).
 

@@ -37,9 +37,9 @@ def lapack_safe(fn, per: int = 1):
     call.  The results are those of the batched call: LAPACK treats each matrix alone.
     Every argument must be batched along with the matrix.
 
-    Nested vmaps (``jax.vmap`` of :func:`solve`, whose steps vmap over a batch of one
-    lane) stay safe too: the batched function each level forms is itself made safe, with
-    ``per`` the matrices one of its calls already holds, so an outer level chunks its
+    Nested vmaps (``jax.vmap`` of :func:`jaxplan.solve.alsqp.solve`, whose steps vmap over a
+    batch of one lane) stay safe too: the batched function each level forms is itself made safe,
+    with ``per`` the matrices one of its calls already holds, so an outer level chunks its
     batch by eigh_chunk(n) // per (an outer vmap that batched the inner level's LAPACK
     call whole hung a vmapped solve of 640 lanes at 0% CPU)."""
     safe = jax.custom_batching.custom_vmap(fn)

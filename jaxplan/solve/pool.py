@@ -19,14 +19,15 @@ def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
                 settings: SolverSettings = SolverSettings(),
                 multipliers: Multipliers | None = None, penalty=None, x_fallback=None,
                 pool: int | None = None) -> Solution:
-    """:func:`solve` over one leading axis of B lanes, ``pool`` lanes stepped at a time.
+    """:func:`jaxplan.solve.alsqp.solve` over one leading axis of B lanes, ``pool`` lanes
+    stepped at a time.
 
     Under a plain vmap every lane runs for as many iterations as the slowest lane needs
     (the finished ones idle).  Here a pool of ``pool`` slots steps together; a slot
     whose lane finishes takes the next unstarted lane.  Each lane still takes exactly
-    the iterations of :func:`solve` (the same results), but the work is about the sum of
-    the lanes' iterations instead of B times the largest.  pool = B (or None) is the
-    plain vmap.  A batch of at most LOCKSTEP_MAX lanes first steps all its lanes in
+    the iterations of :func:`jaxplan.solve.alsqp.solve` (the same results), but the work is
+    about the sum of the lanes' iterations instead of B times the largest.  pool = B (or None)
+    is the plain vmap.  A batch of at most LOCKSTEP_MAX lanes first steps all its lanes in
     lockstep while more than half are active (:func:`_pooled`).  On a CPU, where a step
     costs a fixed part plus about in proportion to its lanes, a small pool pays when
     iteration counts are uneven; on a GPU a step of B lanes costs about what one of a
@@ -117,8 +118,8 @@ FEW_OTHERS = 16  # "few": at most this many other robots per NLP
 
 
 def default_pool(batch: int, backend: str | None = None, n_others: int | None = None) -> int:
-    """The pool size :func:`solve_batch` and the planner use: on a CPU, POOL_CPU_FEW (12)
-    lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
+    """The pool size :func:`jaxplan.solve.batch.solve_batch` and the planner use: on a CPU,
+    POOL_CPU_FEW (12) lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
     robots each (``n_others``: the other-robot slots of an NLP, masked ones included),
     else POOL_CPU (2); B elsewhere.
 
