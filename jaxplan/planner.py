@@ -13,12 +13,12 @@ a_max age^2 / 2; an older view is a robot holding still, which can be off by how
 could have flown since, v_max age.  It is held at the middle of the stretch between its
 last message and where that message predicted it one period later (it fell silent
 somewhere there), and it is never taken to be known better than that stretch allows:
-half its chord plus a_max dt^2 / 8 (``floor``; measured before: a robot that froze at
+half its chord plus a_max dt^2 / 8 (``floor``; without it, a robot that froze at
 1.46 m/s stood 0.195 m from its last message, and a robot planning beside it at the
-planning distance collided, d / rho 0.963).  Each robot then
-builds its NLP (:mod:`jaxplan.nlp`) and solves it; all robots' NLPs are solved in one
-vmapped call (:mod:`jaxplan.solve`).  Warm start: the robot's previous plan shifted by
-the replan period; the first plan starts from its own prediction.
+planning distance collided, d / rho 0.963).  Each robot then builds its NLP (:mod:`jaxplan.nlp`)
+and solves it; all robots' NLPs are solved in one call (:mod:`jaxplan.solve`, a pool of lanes).
+Warm start: the robot's previous plan shifted by the replan period; the first plan starts from
+its own prediction.
 
 Goals another robot occupies: uncertainty never keeps a robot off its own goal.  Where
 robot i's goal lies inside the inflated planning distance of where j's prediction ends
