@@ -124,8 +124,8 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
             p = index_params(P, i)
             pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
             best, arg = np.inf, None
-            for a in solve.GUESS_SHAPES:
-                for f in solve.GUESS_T_FACTORS:
+            for a in solve.guess.GUESS_SHAPES:
+                for f in solve.guess.GUESS_T_FACTORS:
                     T = float(pred.duration) * f
                     z = 0.0 if rest else a * (G @ np.asarray(nlp.boundary_vector(p, T))).T
                     x = nlp.pack(jnp.broadcast_to(z, (3, st.nz)), jnp.log(T))
@@ -140,7 +140,7 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
                 assert np.all(x0[i, :-1] == 0.0)
             else:
                 assert arg[0] == 0.5  # the halfway shape wins here
-                Ts = float(pred.duration) * solve.GUESS_T_FACTORS
+                Ts = float(pred.duration) * solve.guess.GUESS_T_FACTORS
                 v0 = [float(nlp.objective(nlp.pack(jnp.zeros((3, st.nz)), jnp.log(T)), p,
                                             free)) for T in Ts]
                 assert arg[1] < Ts[int(np.argmin(v0))]  # shorter than the free path's T
@@ -155,13 +155,13 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
 
     def full_and_got(p, x):
         pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
-        Ts = jnp.maximum(pred.duration * jnp.asarray(solve.GUESS_T_FACTORS), p.t_min)
+        Ts = jnp.maximum(pred.duration * jnp.asarray(solve.guess.GUESS_T_FACTORS), p.t_min)
 
         def val(a, T):
             z = a * jnp.where(p.rest, 0.0, 1.0) * (G @ nlp.boundary_vector(p, T / seg)).T
             return nlp.objective(nlp.pack(z, jnp.log(T)), p, fr)
         want = jnp.min(jax.vmap(lambda a: jax.vmap(lambda T: val(a, T))(Ts))(
-            jnp.asarray(solve.GUESS_SHAPES)))
+            jnp.asarray(solve.guess.GUESS_SHAPES)))
         return want, nlp.objective(x, p, fr)
 
     x0 = jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P)

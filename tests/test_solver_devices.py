@@ -125,7 +125,7 @@ def test_cpu_eigh_calls_never_split_their_batch():
     for n in (7, 19, 37):
         k = solve.eigh_chunk(n)
         assert ok(k, n) and (k == 1 or not ok(k + 1, n))
-        for batch in (1, k, k + 1, 3 * k + 2, (solve.UNROLL_EIGH + 2) * k - 1):
+        for batch in (1, k, k + 1, 3 * k + 2, (solve.linalg.UNROLL_EIGH + 2) * k - 1):
             A = rng.normal(size=(batch, n, n))
             H = A + A.transpose(0, 2, 1)
             f = jax.jit(jax.vmap(solve.linalg.eigh_safe))
@@ -163,7 +163,7 @@ def test_nested_vmaps_of_the_solver_never_split_a_lapack_batch():
     rng = np.random.default_rng(4)
     n = 19
     k = solve.eigh_chunk(n)
-    for shape in ((3 * k + 2, 1), (k + 1, 2), ((solve.UNROLL_EIGH + 2) * k, 3)):
+    for shape in ((3 * k + 2, 1), (k + 1, 2), ((solve.linalg.UNROLL_EIGH + 2) * k, 3)):
         A = rng.normal(size=shape + (n, n))
         H = A + np.swapaxes(A, -1, -2)
         f = jax.jit(jax.vmap(jax.vmap(solve.linalg.eigh_safe)))
