@@ -29,7 +29,7 @@ def main(argv=None):
 
     # M robots on a 3 m circle at ~1.5 m height, goals on the opposite side, starting at
     # rest.  Free ends (rest=False, the paper's NLP): with one quintic segment a rest end
-    # has no shape freedom left to swerve around the others (see jaxplan/nlp.py).
+    # has no shape freedom left to swerve around the others (see docs/MATH.md, section 2).
     pos, goals = antipodal(M, 3.0, np.random.default_rng(0))
     zero = np.zeros_like(pos)
     # NLPParams with a leading batch axis (M,): weights (objective terms) and limits

@@ -30,16 +30,25 @@ CPU_DEVICES_ENV = "JAXPLAN_CPU_DEVICES"
 MAX_CPU_DEVICES = 8  # measured with 2 (the 2-core CPU); more is untested
 
 
+def env_positive_int(name: str, error: type[Exception] = ValueError) -> int | None:
+    """The positive integer set in environment variable ``name``; None when it is unset
+    or empty.  Anything else raises ``error`` with a message that names the variable."""
+    env = os.environ.get(name, "").strip()
+    if not env:
+        return None
+    try:
+        n = int(env)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise error(f"{name}={env!r}: expected a positive integer")
+    return n
+
+
 def _cpu_device_count() -> int | None:
     """The CPU device count to ask JAX for, or None to leave JAX's choice."""
-    env = os.environ.get(CPU_DEVICES_ENV, "").strip()
-    if env:
-        try:
-            n = int(env)
-        except ValueError:
-            raise ValueError(f"{CPU_DEVICES_ENV}={env!r}: expected a positive integer") from None
-        if n < 1:
-            raise ValueError(f"{CPU_DEVICES_ENV}={env!r}: expected a positive integer")
+    n = env_positive_int(CPU_DEVICES_ENV)
+    if n is not None:
         return n
     if jax.config.jax_num_cpu_devices != -1 or (
             "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", "")):

@@ -13,7 +13,7 @@
     [[robots]] vehicle, start, goal | waypoints, goal_velocity, end_state
     [scenario] kind = "paper:<name>" | "antipodal_sphere" | "random_box" | "grid_swap"
                | "stacked", and the generator's keys (its parameter model in
-               jaxplan/scenarios.py, e.g. RandomBoxParams)
+               jaxplan/scenarios/generators.py, e.g. RandomBoxParams)
     [sweep]    q_obs, q_lim (lists or {log_min, log_max, num}, base-10 exponents),
                seeds (list or {start, num}), scenarios (registry names)
     [faults]   enabled, message_loss, latency_s, noise_sigma_m, frozen_robot, frozen_at_s,
@@ -80,6 +80,7 @@ from jaxplan.fields import (
     show,
     string,
 )
+from jaxplan.nlp import PLANNER_COLLISION_MODES
 from jaxplan.scenarios import GENERATOR_PARAMS, PAPER_SCENARIOS, SCENARIOS, Scenario, ScenarioError
 from jaxplan.vehicles import VEHICLES
 
@@ -121,7 +122,7 @@ DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tol
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
 DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
 DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
-DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solver.default_pool)
+DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solve.default_pool)
 DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
 MAX_COAST_SAMPLES = 256
 
@@ -132,7 +133,7 @@ DEFAULT_CONTROL_HZ = 250.0
 DEFAULT_GOAL_TOLERANCE_M = 0.1
 DEFAULT_GOAL_SPEED_TOLERANCE_MPS = 0.1   # residual speed allowed at a rest goal
 
-COLLISION_MODES = ("paper", "barrier", "constraint", "barrier+constraint")
+COLLISION_MODES = PLANNER_COLLISION_MODES  # the NLP's modes but "none" (jaxplan/nlp/types.py)
 BACKENDS = ("ideal", "mjx")
 FROZEN_MODES = ("silent", "stale")
 MAX_DEGREE = 15
@@ -172,7 +173,7 @@ class PlannerConfig:
     sample times (hard constraints; only in the "constraint" modes; 0 = off, the paper's
     NLP: a free-end plan may then arrive at speed with a robot just beyond its goal).
     solver_pool (>= 0): how many robots' NLPs the solver steps at once in a replan
-    (jaxplan.solver.solve_lanes); 0 = automatic (jaxplan.solver.default_pool): 2 on a
+    (jaxplan.solve.solve_lanes); 0 = automatic (jaxplan.solve.default_pool): 2 on a
     CPU (12 for more than 32 robots with at most 16 others per NLP), all M elsewhere.
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
@@ -345,7 +346,8 @@ _TOP_KEYS = ("name", "description", "seed", "planner", "limits", "sim", "robots"
              "scenario", "sweep", "faults")
 _ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
 FAULT_KEYS = tuple(FaultsConfig.__dataclass_fields__)
-# Each generator's keys, in the order they are written out (declared in jaxplan/scenarios.py).
+# Each generator's keys, in the order they are written out (declared in
+# jaxplan/scenarios/generators.py).
 GENERATOR_KEYS: dict[str, tuple[str, ...]] = {
     kind: params.keys() for kind, params in GENERATOR_PARAMS.items()}
 

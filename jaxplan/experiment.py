@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan import metrics as mt
-from jaxplan import solve as slv
+from jaxplan import solve
 from jaxplan.config import Config, build_scenario
 from jaxplan.faults import FaultParams, no_faults
 from jaxplan.nlp import Limits, NLPStructure, Weights
@@ -98,7 +98,7 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
     lim = Limits(jnp.asarray(scenario.v_max), jnp.asarray(scenario.a_max),
                  jnp.asarray(scenario.j_max))
     M = scenario.start.shape[0]
-    settings = slv.SolverSettings(max_iters=pc.max_iters)
+    settings = solve.SolverSettings(max_iters=pc.max_iters)
     return FleetParams(
         weights=w, limits=lim, radius=jnp.asarray(scenario.radius) + pc.safety_margin_m,
         robot_mask=jnp.ones((M,), bool), dt=jnp.asarray(1.0 / pc.replan_hz),
@@ -340,12 +340,12 @@ def _per_robot(scenario: Scenario, reached, ttg, kin) -> list[dict]:
 def _solver(info, solve_ms) -> dict:
     """metrics.json ``solver``: replan wall times, convergence, iterations, statuses."""
     status = np.asarray(info.status)
-    solver = mt.solver_summary(solve_ms, status == slv.CONVERGED)
+    solver = mt.solver_summary(solve_ms, status == solve.CONVERGED)
     solver.update({
         "timed_replans": int(len(solve_ms)),
         "iterations_median": float(np.median(np.asarray(info.iterations))),
         "status_counts": {name: int(np.sum(status == code))
-                          for code, name in slv.STATUS_NAMES.items()},
+                          for code, name in solve.STATUS_NAMES.items()},
     })
     return {k: _num(v) if isinstance(v, float) else v for k, v in solver.items()}
 

@@ -1,7 +1,7 @@
 """Field types of the TOML config: pydantic annotated types with the config's own error text.
 
 The config's section models (jaxplan/config.py) and the scenario generators' parameter
-models (jaxplan/scenarios.py) declare their fields with these types, so that a value is
+models (jaxplan/scenarios/generators.py) declare their fields with these types, so that a value is
 checked the same way wherever it appears.  A check that pydantic's own constraints
 cannot word the way docs/DESIGN.md's config errors read raises :class:`FieldProblem`;
 jaxplan/config.py turns every validation error into one line ``<file>: <key>: <problem>``.

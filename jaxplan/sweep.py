@@ -22,7 +22,7 @@ is one call of one compiled program: :func:`jaxplan.rollout.rollout_batch`, vmap
 over runs, with the weights (and every other fleet parameter) as traced batched
 inputs.  On a CPU with several devices (jaxplan makes one per core: :mod:`jaxplan`) a
 batch whose size is a multiple of their number is split over them, each device running
-its own runs side by side (:func:`jaxplan.solver.shard_lanes`).  The last batch is
+its own runs side by side (:func:`jaxplan.solve.shard_lanes`).  The last batch is
 padded by repeating its last run (the duplicates are dropped), so every batch has the
 same shape and the planner compiles once per shape group.  Scenarios of different robot
 counts share one shape: smaller fleets are padded to the largest with masked robots
@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import threading
 import time
 import tomllib
@@ -75,7 +74,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from jaxplan import scenarios
+from jaxplan import env_positive_int, scenarios
 from jaxplan.config import Config, ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.experiment import compute_metrics, fleet_params, stack_trees, structures, task_of
 from jaxplan.fileio import append_lines, atomic_write_text
@@ -403,15 +402,10 @@ def _run_metrics(config: Config, prep: _Prepared, records, final: _ReachState, b
 
 def _batch_size(batch_size: int | None) -> int:
     if batch_size is None:
-        env = os.environ.get(BATCH_ENV, "").strip()
-        if env:
-            try:
-                batch_size = int(env)
-            except ValueError:
-                raise SweepError(f"{BATCH_ENV}={env!r}: expected a positive integer") from None
-        else:
-            batch_size = (DEFAULT_BATCH_CPU * len(jax.devices("cpu"))
-                          if jax.default_backend() == "cpu" else DEFAULT_BATCH)
+        batch_size = env_positive_int(BATCH_ENV, SweepError)
+    if batch_size is None:
+        batch_size = (DEFAULT_BATCH_CPU * len(jax.devices("cpu"))
+                      if jax.default_backend() == "cpu" else DEFAULT_BATCH)
     if int(batch_size) < 1:
         raise SweepError(f"batch size must be >= 1, got {batch_size}")
     return int(batch_size)
