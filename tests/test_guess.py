@@ -117,6 +117,8 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
     free = NLPStructure(collision="none")
     G = solve.guess.rest_shape(st)
     pos, goals = antipodal(10, 5.0, np.random.default_rng(0))
+    objective = jax.jit(nlp.objective, static_argnums=2)  # the 300 candidates below
+    boundary = jax.jit(nlp.boundary_vector)
     for rest in (False, True):
         P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), goals, rest=rest)
         x0 = np.asarray(jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P))
@@ -127,9 +129,9 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
             for a in solve.guess.GUESS_SHAPES:
                 for f in solve.guess.GUESS_T_FACTORS:
                     T = float(pred.duration) * f
-                    z = 0.0 if rest else a * (G @ np.asarray(nlp.boundary_vector(p, T))).T
-                    x = nlp.pack(jnp.broadcast_to(z, (3, st.nz)), jnp.log(T))
-                    v = float(nlp.objective(x, p, free))
+                    z = 0.0 if rest else a * (G @ np.asarray(boundary(p, T))).T
+                    x = np.concatenate([np.broadcast_to(z, (3, st.nz)).ravel(), [np.log(T)]])
+                    v = float(objective(x, p, free))
                     if v < best:
                         best, arg = v, (a, T)
             kc = nlp.kind_constants(p.rest, free)
@@ -141,8 +143,8 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
             else:
                 assert arg[0] == 0.5  # the halfway shape wins here
                 Ts = float(pred.duration) * solve.guess.GUESS_T_FACTORS
-                v0 = [float(nlp.objective(nlp.pack(jnp.zeros((3, st.nz)), jnp.log(T)), p,
-                                            free)) for T in Ts]
+                v0 = [float(objective(nlp.pack(jnp.zeros((3, st.nz)), jnp.log(T)), p, free))
+                      for T in Ts]
                 assert arg[1] < Ts[int(np.argmin(v0))]  # shorter than the free path's T
     # the bisection of the grid finds its minimum: random NLPs (moving starts, rest and
     # free ends, two segments), all candidates evaluated at once here

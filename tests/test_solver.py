@@ -200,6 +200,7 @@ _tb_derivs = jax.jit(lambda x, p, st, m, mu: nlp.merit_derivs(
 _tb_value = jax.jit(lambda x, p, st, m, mu: nlp.merit_and_constraints(
     x, p, st, nlp.kind_constants(p.rest, st), m, mu), static_argnums=2)
 _tb_direction = jax.jit(solve.direction)
+_guess = jax.jit(solve.initial_guess, static_argnums=1)  # eagerly: op by op, slower
 
 
 def test_directions_by_cholesky_where_it_settles_them_else_eigh():
@@ -315,7 +316,7 @@ def test_one_evaluation_steps_take_the_textbook_iterates(mode):
     ps = _problems(21, n=4)
     one = jax.jit(lambda p, x: solve.solve(p, x, st))
     for p in ps:
-        x0 = solve.initial_guess(p, st)
+        x0 = _guess(p, st)
         sol = jax.device_get(one(p, x0))
         it, conv, x = _textbook(p, x0, st)
         assert (int(sol.iterations), bool(sol.status == solve.CONVERGED)) == (it, conv)
@@ -389,7 +390,7 @@ def test_warm_start_is_finite_for_degenerate_previous_plans():
     for tr in (prev, nan):
         x = _warm(tr, p)
         assert np.all(np.isfinite(x))
-    sol = _one(p, solve.initial_guess(p, S1))
+    sol = _one(p, _guess(p, S1))
     x = _warm(sol.traj, p)
     assert (np.all(np.isfinite(x))
             and abs(float(jnp.exp(x[-1]) - (sol.traj.duration - 0.125))) < 1e-9)
@@ -402,7 +403,7 @@ def test_solution_is_differentiable_in_the_weights():
     st = NLPStructure(collision="barrier", segments=2)
     rng = np.random.default_rng(11)
     p = random_problem(rng, n_others=4, rest=False)
-    x0 = solve.initial_guess(p, st)
+    x0 = _guess(p, st)
     tight = solve.SolverSettings(tol_stationarity=0.0, max_iters=80)
 
     def out(q_obs, q_lim, x_start):
