@@ -152,7 +152,7 @@ def test_pool_size_does_not_change_results():
     passed 1e6) until an infeasible lane's penalty reaches 1e10: there its Hessian's
     condition (~1e12) turns last-bit differences into ~1e-9 in one step, and its
     multipliers, growing by mu x violation each iteration, amplify them ~1.6x per
-    iteration.  Lane 23 of this batch on a CPU with AVX-512 (2026-12-03): identical to
+    iteration.  Lane 23 of this batch on a CPU with AVX-512: identical to
     <= 2.2e-16 for 18 iterations, 1e-9 at the 19th, 1e-3 at the 51st, and after 60 it
     ends feasible (MAX_ITERS, objective 52.5) with the plain vmap but INFEASIBLE
     (violation 0.14, objective 27.0) with pools 1, 2, 7 and 12 and in solve() alone;
