@@ -1,10 +1,10 @@
 """Field types of the TOML config: pydantic annotated types with the config's own error text.
 
-The config's section models (jaxplan/config.py) and the scenario generators' parameter
+The config's section models (jaxplan/config/schema.py) and the scenario generators' parameter
 models (jaxplan/scenarios/generators.py) declare their fields with these types, so that a value is
 checked the same way wherever it appears.  A check that pydantic's own constraints
 cannot word the way docs/DESIGN.md's config errors read raises :class:`FieldProblem`;
-jaxplan/config.py turns every validation error into one line ``<file>: <key>: <problem>``.
+jaxplan/config/errors.py turns every validation error into one line ``<file>: <key>: <problem>``.
 
 Vectors (:data:`Position`) take their expected length from the validation context
 ``{"dim": N}`` when given (a config uses one N throughout).

@@ -846,10 +846,10 @@ def test_parse_config_mutations():
     _count("parse_config", n)
 
 
-_KNOWN = sorted(set(C._TOP_KEYS) | set(C.PlannerConfig.__dataclass_fields__)
+_KNOWN = sorted(set(C.TOP_KEYS) | set(C.PlannerConfig.__dataclass_fields__)
                 | set(C.SimConfig.__dataclass_fields__) | set(C.FAULT_KEYS)
                 | {k for g in C.GENERATOR_KEYS.values() for k in g}
-                | set(C._ROBOT_KEYS) | {"kind", "log_min", "log_max", "num", "start"})
+                | set(C.ROBOT_KEYS) | {"kind", "log_min", "log_max", "num", "start"})
 _scalar = st.one_of(
     st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=6),
     st.sampled_from([g for g in GARBAGE if g is not HUGE_INT]), st.dates(),
@@ -860,7 +860,7 @@ _doc = st.recursive(_scalar, lambda ch: st.lists(ch, max_size=4) | st.dictionari
 
 
 @settings(max_examples=300, **HYPOTHESIS)
-@given(doc=st.one_of(_doc, st.dictionaries(st.sampled_from(C._TOP_KEYS), _doc, max_size=6)))
+@given(doc=st.one_of(_doc, st.dictionaries(st.sampled_from(C.TOP_KEYS), _doc, max_size=6)))
 def test_parse_config_garbage_documents(doc):
     _count("parse_config", 1)
     _check_config_outcome(doc)

@@ -4,7 +4,7 @@ docs/DESIGN.md, "Config (TOML)").
 
 A generator's ``[scenario]`` keys are declared once, by the parameter model next to it
 (:class:`AntipodalSphereParams`, :class:`RandomBoxParams`, :class:`GridSwapParams`,
-:class:`StackedParams`, field types from jaxplan/fields.py): jaxplan/config.py validates a
+:class:`StackedParams`, field types from jaxplan/fields.py): jaxplan/config/ validates a
 config's ``[scenario]`` table with it, and the generator's defaults are the model's.
 
 Everything here is host-side NumPy (float64), deterministic for a seed: every random

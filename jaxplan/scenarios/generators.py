@@ -1,5 +1,5 @@
 """The four benchmark generators (antipodal sphere, random box, grid swap, stacked), each
-with the parameter model that declares its ``[scenario]`` keys once: jaxplan/config.py
+with the parameter model that declares its ``[scenario]`` keys once: jaxplan/config/
 validates a config's ``[scenario]`` table with it, and the generator's defaults are the
 model's.  Deterministic for a seed (``numpy.random.default_rng(seed)``)."""
 
@@ -139,7 +139,7 @@ def _place(rng, count, sample, spacing, max_tries, what, ok=None, chunk=64):
 # -------------------------------------------------------------------------- generators
 #
 # Each generator's [scenario] keys are declared once, by the parameter model above it:
-# the config (jaxplan/config.py) validates a [scenario] table with that model, and the
+# the config (jaxplan/config/) validates a [scenario] table with that model, and the
 # generator's own defaults are the model's.
 
 _PARAMS_CONFIG = ConfigDict(extra="forbid")

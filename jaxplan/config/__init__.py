@@ -1,0 +1,146 @@
+"""TOML configs -> frozen, validated pydantic dataclasses, every default resolved
+(docs/DESIGN.md, "Config (TOML)").
+
+    name = "six_neos"                 # default: the file's stem ("config" for strings)
+    description = ""                  # free text
+    seed = 0                          # 0 <= seed < 2**63; seeds every random choice
+    [planner]  replan_hz, q_dynm, q_obs, q_lim, k_t, k_p, collision, degree, segments,
+               end_state, max_iters, tol, n_samples, safety_margin_m, max_neighbors,
+               coast_samples, solver_pool
+    [limits]   v_max, a_max, j_max    (optional overrides of the per-vehicle defaults)
+    [sim]      backend, duration_s, physics_hz, control_hz, goal_tolerance_m,
+               goal_speed_tolerance_mps
+    [[robots]] vehicle, start, goal | waypoints, goal_velocity, end_state
+    [scenario] kind = "paper:<name>" | "antipodal_sphere" | "random_box" | "grid_swap"
+               | "stacked", and the generator's keys (its parameter model in
+               jaxplan/scenarios/generators.py, e.g. RandomBoxParams)
+    [sweep]    q_obs, q_lim (lists or {log_min, log_max, num}, base-10 exponents),
+               seeds (list or {start, num}), scenarios (registry names)
+    [faults]   enabled, message_loss, latency_s, noise_sigma_m, frozen_robot, frozen_at_s,
+               frozen_mode (jaxplan/faults.py; off by default)
+
+Robots: ``goal = [x, y, z]`` (one goal) or ``waypoints = [[x, y, z], ...]`` (several, in
+order; the fleet moves on when every robot reached waypoint w).  ``goal_velocity`` is
+one vector (the end velocity at the final waypoint) or a list with one entry per
+waypoint, ``[]`` meaning none there.  ``end_state`` is "free" | "rest" (all waypoints)
+or a list with one entry per waypoint; default ``planner.end_state``.  Robot indices in
+messages count from 0 (``robots[0]`` is the first ``[[robots]]``).  Positions have 2
+(planar robots) or 3 coordinates; one config uses one N throughout.
+
+``[scenario]`` builds robots from a generator or one of the paper's four
+(``kind = "paper:six_neos"``, ``"paper:eight_fireflys_stacked"``,
+``"paper:eight_mixed_transitions"``, ``"paper:ten_mixed_rest"``; these take no other
+key).  ``[[robots]]`` entries, if any, are appended after the generated robots.  The
+top-level ``seed`` seeds the generator.
+
+Each section is a pydantic dataclass (unknown keys forbidden, frozen, hashable; the field
+types are in jaxplan/fields.py).  Every error is a :class:`ConfigError` whose message is
+one line, ``<file>: <key>: <problem>``, raised before any computation: pydantic's
+validation errors are translated into that form in errors.py.
+
+The package: schema.py (defaults, section models), errors.py (one-line errors),
+parse.py (documents -> Config), resolve.py (Config -> config.toml, Scenario).
+"""
+
+from jaxplan.config.parse import load_config, parse_config
+from jaxplan.config.resolve import build_scenario, config_to_dict, config_to_toml
+from jaxplan.config.schema import (
+    BACKENDS,
+    COLLISION_MODES,
+    DEFAULT_BACKEND,
+    DEFAULT_COAST_SAMPLES,
+    DEFAULT_COLLISION,
+    DEFAULT_CONTROL_HZ,
+    DEFAULT_DEGREE,
+    DEFAULT_DURATION_S,
+    DEFAULT_END_STATE,
+    DEFAULT_GOAL_SPEED_TOLERANCE_MPS,
+    DEFAULT_GOAL_TOLERANCE_M,
+    DEFAULT_K_P,
+    DEFAULT_K_T,
+    DEFAULT_MAX_ITERS,
+    DEFAULT_MAX_NEIGHBORS,
+    DEFAULT_N_SAMPLES,
+    DEFAULT_PHYSICS_HZ,
+    DEFAULT_Q_DYNM,
+    DEFAULT_Q_LIM,
+    DEFAULT_Q_OBS,
+    DEFAULT_REPLAN_HZ,
+    DEFAULT_SAFETY_MARGIN_M,
+    DEFAULT_SEGMENTS,
+    DEFAULT_SOLVER_POOL,
+    DEFAULT_TOL,
+    FAULT_KEYS,
+    GENERATOR_KEYS,
+    MAX_COAST_SAMPLES,
+    MAX_DEGREE,
+    MAX_ITERS,
+    MAX_SAMPLES,
+    MAX_SEED,
+    MAX_SEGMENTS,
+    MAX_SWEEP_POINTS,
+    ROBOT_KEYS,
+    TOP_KEYS,
+    Config,
+    ConfigError,
+    FaultsConfig,
+    LimitsConfig,
+    PlannerConfig,
+    RobotConfig,
+    ScenarioConfig,
+    SimConfig,
+    SweepConfig,
+)
+
+__all__ = [
+    "BACKENDS",
+    "COLLISION_MODES",
+    "Config",
+    "ConfigError",
+    "DEFAULT_BACKEND",
+    "DEFAULT_COAST_SAMPLES",
+    "DEFAULT_COLLISION",
+    "DEFAULT_CONTROL_HZ",
+    "DEFAULT_DEGREE",
+    "DEFAULT_DURATION_S",
+    "DEFAULT_END_STATE",
+    "DEFAULT_GOAL_SPEED_TOLERANCE_MPS",
+    "DEFAULT_GOAL_TOLERANCE_M",
+    "DEFAULT_K_P",
+    "DEFAULT_K_T",
+    "DEFAULT_MAX_ITERS",
+    "DEFAULT_MAX_NEIGHBORS",
+    "DEFAULT_N_SAMPLES",
+    "DEFAULT_PHYSICS_HZ",
+    "DEFAULT_Q_DYNM",
+    "DEFAULT_Q_LIM",
+    "DEFAULT_Q_OBS",
+    "DEFAULT_REPLAN_HZ",
+    "DEFAULT_SAFETY_MARGIN_M",
+    "DEFAULT_SEGMENTS",
+    "DEFAULT_SOLVER_POOL",
+    "DEFAULT_TOL",
+    "FAULT_KEYS",
+    "FaultsConfig",
+    "GENERATOR_KEYS",
+    "LimitsConfig",
+    "MAX_COAST_SAMPLES",
+    "MAX_DEGREE",
+    "MAX_ITERS",
+    "MAX_SAMPLES",
+    "MAX_SEED",
+    "MAX_SEGMENTS",
+    "MAX_SWEEP_POINTS",
+    "PlannerConfig",
+    "ROBOT_KEYS",
+    "RobotConfig",
+    "ScenarioConfig",
+    "SimConfig",
+    "SweepConfig",
+    "TOP_KEYS",
+    "build_scenario",
+    "config_to_dict",
+    "config_to_toml",
+    "load_config",
+    "parse_config",
+]

@@ -1,0 +1,279 @@
+"""The config's defaults and its section models: one frozen pydantic dataclass per TOML
+section (unknown keys forbidden; field types from jaxplan/fields.py), and the keys each
+section and each generator takes."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Annotated, Any
+
+from pydantic import (
+    AfterValidator,
+    ConfigDict,
+    Strict,
+    model_validator,
+)
+from pydantic.dataclasses import dataclass
+
+from jaxplan import scenarios
+from jaxplan.fields import (
+    MAX_ROBOTS,
+    EndState,
+    FieldProblem,
+    Position,
+    VehicleName,
+    integer,
+    number,
+    one_of,
+    show,
+    string,
+)
+from jaxplan.nlp import PLANNER_COLLISION_MODES
+from jaxplan.scenarios import GENERATOR_PARAMS
+
+# ---------------------------------------------------------------------------------------
+# Defaults: the one place to tune them.  The weights are placeholders for the solver.
+# ---------------------------------------------------------------------------------------
+DEFAULT_REPLAN_HZ = 8.0                  # Hz, the paper's rate
+DEFAULT_Q_DYNM = 1.0                     # smoothness weight on |x'''|^2
+DEFAULT_Q_OBS = 10.0                     # collision weight
+DEFAULT_Q_LIM = 2.0                      # soft-limit weight (tuned with k_t: peak speed ~ v_max)
+DEFAULT_K_T = 6.0                        # time weight (k_t / q_lim = 3: cruise at ~v_max)
+DEFAULT_K_P = 5.0                        # 1/m, collision decay rate exp(-K_p (d - rho))
+DEFAULT_COLLISION = "barrier+constraint"  # the literal "paper" term cannot avoid (docs/MATH.md 2)
+DEFAULT_DEGREE = 5
+DEFAULT_SEGMENTS = 2                     # rest ends need shape freedom (docs/MATH.md 2); paper: 1
+DEFAULT_END_STATE = "free"               # the paper's position-only end state
+DEFAULT_MAX_ITERS = 50                   # solver iterations per replan (bounded loop)
+DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tolerance
+DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
+DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
+DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
+DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solve.default_pool)
+DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
+MAX_COAST_SAMPLES = 256
+
+DEFAULT_BACKEND = "ideal"
+DEFAULT_DURATION_S = 30.0
+DEFAULT_PHYSICS_HZ = 500.0
+DEFAULT_CONTROL_HZ = 250.0
+DEFAULT_GOAL_TOLERANCE_M = 0.1
+DEFAULT_GOAL_SPEED_TOLERANCE_MPS = 0.1   # residual speed allowed at a rest goal
+
+COLLISION_MODES = PLANNER_COLLISION_MODES  # the NLP's modes but "none" (jaxplan/nlp/types.py)
+BACKENDS = ("ideal", "mjx")
+FROZEN_MODES = ("silent", "stale")
+MAX_DEGREE = 15
+MAX_SEGMENTS = 64
+MAX_SAMPLES = 4096
+MAX_SWEEP_POINTS = 10000
+MAX_SEED = 2**63 - 1
+MAX_ITERS = 1_000_000
+
+
+class ConfigError(ValueError):
+    """An invalid config: one line ``<file>: <key>: <problem>``."""
+
+
+SECTION_CONFIG = ConfigDict(extra="forbid")  # every section model: unknown keys are errors
+
+# ---------------------------------------------------------------------------------------
+# Section models
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class PlannerConfig:
+    """[planner]: rates, NLP weights, collision treatment, trajectory shape, solver.
+
+    replan_hz (Hz); q_dynm, q_obs, q_lim, k_t (>= 0) objective weights; k_p (1/m, > 0);
+    collision in COLLISION_MODES; degree (>= 5) and segments (>= 1) of the polynomial
+    per axis; end_state "free" | "rest" (default for robots); max_iters, tol, n_samples;
+    safety_margin_m (m, >= 0): added to every robot's radius in the planner's collision
+    terms only, so that rho_ij is planned with r_i + r_j + 2 margin while metrics still
+    count a collision below r_i + r_j (covers sampling between collision samples and
+    the others' replanning).  max_neighbors (>= 0): 0 puts every other robot in each
+    robot's NLP; K >= 1 only the K that come nearest to its own prediction (the NLP's
+    cost then stays flat as the fleet grows; jaxplan.planner.nearest_neighbors).
+    coast_samples (>= 0): a free-end plan must also keep clear of the others on its coast
+    after T (p(T) + v(T) t, for t up to the time a stop from v_max takes) at this many
+    sample times (hard constraints; only in the "constraint" modes; 0 = off, the paper's
+    NLP: a free-end plan may then arrive at speed with a robot just beyond its goal).
+    solver_pool (>= 0): how many robots' NLPs the solver steps at once in a replan
+    (jaxplan.solve.solve_lanes); 0 = automatic (jaxplan.solve.default_pool): 2 on a
+    CPU (12 for more than 32 robots with at most 16 others per NLP), all M elsewhere.
+    Speed only: every NLP takes the same iterations whatever the pool (results equal to
+    rounding, which a closed loop can amplify into slightly different runs).
+    """
+
+    replan_hz: number(gt=0.0) = DEFAULT_REPLAN_HZ
+    q_dynm: number(ge=0.0) = DEFAULT_Q_DYNM
+    q_obs: number(ge=0.0) = DEFAULT_Q_OBS
+    q_lim: number(ge=0.0) = DEFAULT_Q_LIM
+    k_t: number(ge=0.0) = DEFAULT_K_T
+    k_p: number(gt=0.0) = DEFAULT_K_P
+    collision: string(one_of(COLLISION_MODES)) = DEFAULT_COLLISION
+    degree: integer(ge=5, le=MAX_DEGREE) = DEFAULT_DEGREE
+    segments: integer(ge=1, le=MAX_SEGMENTS) = DEFAULT_SEGMENTS
+    end_state: EndState = DEFAULT_END_STATE
+    max_iters: integer(ge=1, le=MAX_ITERS) = DEFAULT_MAX_ITERS
+    tol: number(gt=0.0) = DEFAULT_TOL
+    n_samples: integer(ge=2, le=MAX_SAMPLES) = DEFAULT_N_SAMPLES
+    safety_margin_m: number(ge=0.0, le=10.0) = DEFAULT_SAFETY_MARGIN_M
+    max_neighbors: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_MAX_NEIGHBORS
+    coast_samples: integer(ge=0, le=MAX_COAST_SAMPLES) = DEFAULT_COAST_SAMPLES
+    solver_pool: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_SOLVER_POOL
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class LimitsConfig:
+    """[limits]: m/s, m/s^2, m/s^3 overrides for every robot; None (not given) = the
+    per-vehicle default.  TOML has no null: a given value must be a positive number."""
+
+    v_max: number(gt=0.0) = None
+    a_max: number(gt=0.0) = None
+    j_max: number(gt=0.0) = None
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class SimConfig:
+    """[sim]: backend "ideal" | "mjx"; duration_s (s); physics_hz, control_hz (Hz,
+    physics_hz / control_hz a whole number); goal_tolerance_m (m);
+    goal_speed_tolerance_mps (m/s, residual speed allowed at a rest goal)."""
+
+    backend: string(one_of(BACKENDS)) = DEFAULT_BACKEND
+    duration_s: number(gt=0.0) = DEFAULT_DURATION_S
+    physics_hz: number(gt=0.0) = DEFAULT_PHYSICS_HZ
+    control_hz: number(gt=0.0) = DEFAULT_CONTROL_HZ
+    goal_tolerance_m: number(gt=0.0) = DEFAULT_GOAL_TOLERANCE_M
+    goal_speed_tolerance_mps: number(gt=0.0) = DEFAULT_GOAL_SPEED_TOLERANCE_MPS
+
+    @model_validator(mode="after")
+    def _whole_steps_per_control(self) -> SimConfig:
+        ratio = self.physics_hz / self.control_hz
+        if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+            raise FieldProblem(f"physics_hz / control_hz must be a whole number >= 1 (the "
+                               f"controller runs every k-th physics step), got "
+                               f"{self.physics_hz:g} / {self.control_hz:g}", key="control_hz")
+        return self
+
+
+def _below_one(x: float) -> float:
+    if x >= 1.0:
+        raise FieldProblem(f"must be < 1 (a probability), got {x}")
+    return x
+
+
+def _at_most_ten_seconds(x: float) -> float:
+    if x > 10.0:
+        raise FieldProblem(f"must be <= 10 s, got {x}")
+    return x
+
+
+Probability = Annotated[number(ge=0.0), AfterValidator(_below_one)]
+ShortDelay = Annotated[number(ge=0.0), AfterValidator(_at_most_ten_seconds)]
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class FaultsConfig:
+    """[faults] (jaxplan/faults.py): all off by default; ``enabled`` switches the faulty
+    channel on (a different compiled program)."""
+
+    enabled: Annotated[bool, Strict()] = False
+    message_loss: Probability = 0.0  # per (observer, sender, period), in [0, 1)
+    latency_s: ShortDelay = 0.0  # s, rounded to whole replan periods
+    noise_sigma_m: number(ge=0.0) = 0.0  # m per axis on every received position
+    frozen_robot: integer(ge=-1) = -1  # index of the robot that stops responding; -1: none
+    frozen_at_s: number(ge=0.0) = 0.0  # s
+    frozen_mode: string(one_of(FROZEN_MODES)) = "silent"  # "silent" | "stale" (keeps sending)
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """One [[robots]] entry, resolved.
+
+    vehicle: name; start: (N,) m; waypoints: W goals of (N,) m; end_state: W of
+    "free" | "rest"; goal_velocity: W entries, each (N,) m/s or None.
+    """
+
+    vehicle: VehicleName
+    start: Position
+    waypoints: tuple[Position, ...]
+    end_state: tuple[EndState, ...]
+    goal_velocity: tuple[Position | None, ...]
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """[scenario], resolved: kind and, for a generator, its parameter model with every
+    default filled in (None for the paper's four, which take no parameters)."""
+
+    kind: str
+    params: scenarios.AnyGeneratorParams | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {} if self.params is None else self.params.as_dict()
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return self.as_dict().get(key, default)
+
+    @property
+    def dim(self) -> int:
+        return int(self.as_dict().get("dim", 3))
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """[sweep], resolved: q_obs, q_lim weight grids; seeds; scenarios (registry names,
+    empty = the config's own fleet).  Defaults: the planner's weights and the seed."""
+
+    q_obs: tuple[float, ...]
+    q_lim: tuple[float, ...]
+    seeds: tuple[int, ...]
+    scenarios: tuple[str, ...] = ()
+
+
+def _plain_name(name: str) -> str:
+    if not name.strip() or any(ch in name for ch in "/\\\n\r\t\0"):
+        raise FieldProblem(f"must be a non-empty name without slashes or control "
+                           f"characters, got {show(name)}")
+    return name
+
+
+Name = string(AfterValidator(_plain_name))
+Seed = integer(ge=0, le=MAX_SEED)
+
+
+@dataclass(frozen=True)
+class Config:
+    """A whole experiment, validated and resolved.  ``source`` is where it came from
+    (not part of equality)."""
+
+    name: Name
+    description: str
+    seed: Seed
+    planner: PlannerConfig
+    limits: LimitsConfig
+    sim: SimConfig
+    robots: tuple[RobotConfig, ...]
+    scenario: ScenarioConfig | None
+    sweep: SweepConfig
+    faults: FaultsConfig
+    source: str = dataclasses.field(default="<string>", compare=False)
+
+    @property
+    def dim(self) -> int:
+        """N, the number of spatial dimensions."""
+        if self.scenario is not None:
+            return self.scenario.dim
+        return len(self.robots[0].start)
+
+
+TOP_KEYS = ("name", "description", "seed", "planner", "limits", "sim", "robots",
+             "scenario", "sweep", "faults")
+ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
+FAULT_KEYS = tuple(FaultsConfig.__dataclass_fields__)
+# Each generator's keys, in the order they are written out (declared in
+# jaxplan/scenarios/generators.py).
+GENERATOR_KEYS: dict[str, tuple[str, ...]] = {
+    kind: params.keys() for kind, params in GENERATOR_PARAMS.items()}
