@@ -133,3 +133,25 @@ def test_the_module_map_matches_the_code():
         if name == "jaxplan/results.py":  # the one lazy import, named in the table
             above.add("jaxplan/plots/")
         assert said <= above, (name, said - above)
+
+
+def test_every_python_name_the_docs_give_exists():
+    """Dotted names such as `jaxplan.solve.solve_batch` in the docs import and resolve."""
+    import importlib
+
+    missing = []
+    for doc in DOCS:
+        for m in re.finditer(r"\bjaxplan(?:\.[A-Za-z_]\w*)+", doc.read_text(encoding="utf-8")):
+            parts = m.group(0).split(".")
+            for k in range(len(parts), 0, -1):  # the longest importable prefix
+                try:
+                    obj = importlib.import_module(".".join(parts[:k]))
+                    break
+                except ImportError:
+                    continue
+            for attr in parts[k:]:
+                if not hasattr(obj, attr):
+                    missing.append(f"{doc.relative_to(ROOT)}: {m.group(0)}")
+                    break
+                obj = getattr(obj, attr)
+    assert not missing, "\n".join(missing)
