@@ -42,7 +42,7 @@ studies: $(STAMP)
 	$(PY) experiments/studies.py faults --out sweeps/studies
 
 bench: $(STAMP)
-	$(VENV)/bin/jaxplan bench all --json bench.json
+	$(VENV)/bin/jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check jaxplan tests

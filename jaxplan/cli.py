@@ -4,7 +4,7 @@
     jaxplan run CONFIG.toml [--out DIR]        one experiment -> a run directory
     jaxplan sweep CONFIG.toml [--out DIR]      a grid of weights x scenarios x seeds
     jaxplan plot RUN_DIR                        (re)draw a run's figures
-    jaxplan bench [solver|predict|sim|all] [--json FILE]
+    jaxplan bench [solver|predict|sim|all] [--json FILE] [--markdown FILE]
     jaxplan scenarios                           list built-in scenarios
 
 Bad input exits with status 2 and one line on stderr that names the problem.
@@ -69,6 +69,8 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks (medians; compile time apart)")
     b.add_argument("which", nargs="?", default="all", choices=BENCHES)
     b.add_argument("--json", type=Path, default=None, help="write the figures as JSON")
+    b.add_argument("--markdown", type=Path, default=None,
+                   help="write the figures as a markdown page (docs/BENCHMARKS.md)")
     sub.add_parser("scenarios", help="list built-in scenarios")
     return p
 
@@ -223,6 +225,11 @@ def _cmd_bench(args) -> int:
 
         write_json(args.json, results if len(which) > 1 else results[which[0]])
         print(f"wrote {args.json}")
+    if args.markdown:
+        from jaxplan.benchmarks.report import write_markdown
+
+        write_markdown(args.markdown, results)
+        print(f"wrote {args.markdown}")
     return 0
 
 

@@ -1,0 +1,66 @@
+"""jaxplan.benchmarks.report: bench.json -> docs/BENCHMARKS.md (no benchmark is run here:
+the figures are made up, so that each can be found in the page)."""
+
+from __future__ import annotations
+
+import json
+
+from jaxplan.benchmarks.report import markdown, write_markdown
+from jaxplan.cli import main
+
+PREDICT = {"pairs": 1_000_000, "threads": 2, "predictions_per_s": 2_471_234.0,
+           "predictions_per_s_single_thread": 1_503_210.0, "target_predictions_per_s": 2_000_000,
+           "speedup_vs_numpy_roots": 312.4, "numpy_roots_predictions_per_s": 7911.0,
+           "max_rel_T_difference_vs_numpy_roots": 3.5e-15, "compile_s": 2.53}
+FLEET = {"cold_ms": 2.13, "cold_conv": 1.0, "cold_iters": 6, "warm_ms": 1.41, "warm_conv": 1.0,
+         "compile_s": 8.4}
+SOLVER = {
+    "fleet10": FLEET,
+    "slsqp10_cold": {"ms": 82.1, "callback_ms": 62.4, "rel_gap_max": 5.2e-11,
+                     "jax_max_violation": 0.0, "max_violation": 0.0},
+    "slsqp10_warm": {"ms": 74.9, "rel_gap_max": 1.55e-11},
+    "ratio_cold": 38.5, "ratio_warm": 53.1, "neighbors_k": 16,
+    "fleet100": {"cold_ms": 258.5, "warm_ms": 45.3, "warm_conv": 1.0},
+    "fleet100_k": {"cold_ms": 53.4, "warm_ms": 9.8, "warm_conv": 1.0},
+    "batch64x10": {"ms": 43.4, "solves_per_s": 14741.0, "solves_per_s_range": [9799.0, 15012.0],
+                   "converged": 1.0, "ratio_vs_slsqp_serial": 121.0},
+}
+SIM = {"vehicles": 10, "physics_hz": 500, "control_hz": 250, "closed_loop_rtf": 7.43,
+       "closed_loop_compile_s": 40.2, "closed_loop_rtf_transit": 5.31,
+       "mjx_physics_only_steps_per_s": 24400.0, "c_mj_step_steps_per_s": 98000.0,
+       "ratio_mjx_physics_only_vs_c_mj_step": 0.249}
+
+
+def test_every_benchmark_section_shows_its_figures():
+    page = markdown({"predict": PREDICT, "solver": SOLVER, "sim": SIM},
+                    machine="2-core CPU (test)", commit="abc1234", date="2026-12-04")
+    lines = page.splitlines()
+    header = [ln for ln in lines if "commit abc1234" in ln]
+    assert header == ["`make bench (jaxplan bench all --json bench.json --markdown "
+                      "docs/BENCHMARKS.md)`; 2-core CPU (test); commit abc1234; 2026-12-04."]
+    for figure in ("2,471,234", "312x", "3.5e-15", "2.13 ms", "38.5x", "1.41 ms", "53.1x",
+                   "5.2e-11", "1.6e-11", "258.5 ms", "45.3 ms", "16 nearest", "9.80 ms",
+                   "14,741 robot-NLP solves/s", "9,799-15,012/s", "121x", "7.4x", "5.3x",
+                   "24,400", "98,000", "0.25x"):
+        assert figure in page, figure
+    assert page.count("## ") == 3
+
+
+def test_missing_benchmarks_are_left_out():
+    page = markdown({"solver": {k: v for k, v in SOLVER.items() if k != "fleet100_k"}},
+                    machine="m", commit="c", date="d")
+    assert "## Solver" in page and "## Prediction" not in page and "## Closed loop" not in page
+    assert "nearest" not in page
+
+
+def test_bench_command_takes_a_markdown_path(tmp_path, monkeypatch):
+    import jaxplan.benchmarks.solver as bench_solver
+
+    monkeypatch.setattr(bench_solver, "run", lambda: SOLVER)
+    out, js = tmp_path / "BENCHMARKS.md", tmp_path / "bench.json"
+    assert main(["bench", "solver", "--json", str(js), "--markdown", str(out)]) == 0
+    page = out.read_text()
+    assert page.startswith("# Benchmarks") and "14,741" in page
+    assert json.loads(js.read_text())["batch64x10"]["ms"] == 43.4
+    write_markdown(out, {"sim": SIM})  # overwritten whole
+    assert "## Solver" not in out.read_text() and "7.4x" in out.read_text()
