@@ -12,6 +12,7 @@ Run:  .venv/bin/python examples/run_scenario.py [CONFIG.toml] [--out RUN_DIR]
 
 import argparse
 import tomllib
+from pathlib import Path
 
 import jaxplan  # noqa: F401  (importing jaxplan turns on float64 in JAX)
 from jaxplan.config import load_config, parse_config
@@ -19,25 +20,8 @@ from jaxplan.experiment import run
 from jaxplan.results import write_run
 
 # Two robots swapping places head-on and a third crossing their path (the test suite's
-# tiny scenario, tests/conftest.py): runs in a few seconds after compiling.
-TINY_TOML = """
-name = "tiny"
-seed = 0
-[sim]
-duration_s = 12.0
-[[robots]]
-vehicle = "firefly"
-start = [0.0, 0.0, 1.5]
-goal = [4.0, 0.0, 1.5]
-[[robots]]
-vehicle = "firefly"
-start = [4.0, 0.1, 1.5]
-goal = [0.0, 0.1, 1.5]
-[[robots]]
-vehicle = "neo11"
-start = [2.0, -2.0, 1.5]
-goal = [2.0, 2.0, 1.5]
-"""
+# tiny scenario): runs in a few seconds after compiling.
+TINY_TOML = (Path(__file__).resolve().parent / "tiny.toml").read_text()
 
 
 def main(argv=None):

@@ -3,6 +3,7 @@
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -44,24 +45,8 @@ def pytest_sessionfinish(session, exitstatus):
         shutil.rmtree(_SESSION_CACHE, ignore_errors=True)
 
 
-TINY_TOML = """
-name = "tiny"
-seed = 0
-[sim]
-duration_s = 12.0
-[[robots]]
-vehicle = "firefly"
-start = [0.0, 0.0, 1.5]
-goal = [4.0, 0.0, 1.5]
-[[robots]]
-vehicle = "firefly"
-start = [4.0, 0.1, 1.5]
-goal = [0.0, 0.1, 1.5]
-[[robots]]
-vehicle = "neo11"
-start = [2.0, -2.0, 1.5]
-goal = [2.0, 2.0, 1.5]
-"""
+# the tiny scenario, shared with examples/run_scenario.py (its default config)
+TINY_TOML = (Path(__file__).resolve().parents[1] / "examples" / "tiny.toml").read_text()
 
 
 # Test modules that share one pytest-xdist worker under `make test` (--dist loadfile):
