@@ -35,6 +35,7 @@ from jaxplan.planner import (
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
 from jaxplan.timing import timed
+from jaxplan.world import world_arrays
 
 T_MIN = 0.05  # s, lower bound on every plan's horizon
 ACCEPT_VIOLATION = 1e-3  # m^2: largest collision-constraint violation accepted at max-iters
@@ -377,6 +378,7 @@ def _run_arrays(scenario: Scenario, records, pieces, min_dist, duration: float) 
         "replan_t": np.asarray(records.t),
         "status": np.asarray(records.info.status).astype(np.int32),
         "fallback": np.asarray(records.info.fallback).astype(np.int32),
+        **world_arrays(scenario.world),
     }
 
 

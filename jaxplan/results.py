@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxplan.fileio import atomic_write_bytes, atomic_write_text
+from jaxplan.world import World, world_from_arrays
 
 __all__ = ["write_run", "load_run", "RunData", "REQUIRED_NPZ"]
 
@@ -89,7 +90,8 @@ class RunData:
     goal (M, N) m; vehicle: M names; pieces: (seg_robot (S,), seg_t0 (S,), seg_t1 (S,),
     seg_coeffs (S, N, D+1)) or None; waypoints (M, W, N) m or None; metrics: the parsed
     metrics.json or {}; limits: {"v_max": (M,), "a_max": (M,)} m/s, m/s^2, NaN where
-    unknown; name: the run's name (config ``name`` or the folder name).
+    unknown; name: the run's name (config ``name`` or the folder name); world: the
+    :class:`jaxplan.world.World` (unbounded and empty for a run that stored none).
     """
 
     run_dir: Path
@@ -105,6 +107,7 @@ class RunData:
     metrics: dict
     limits: dict
     name: str
+    world: World | None = None
 
     @property
     def num_robots(self) -> int:
@@ -158,8 +161,15 @@ def load_run(run_dir, *, complete: bool = False) -> RunData:
         run_dir=run_dir, t=t, pos=pos, vel=vel, acc=acc, radius=radius, goal=goal,
         vehicle=vehicle, pieces=_pieces(npz, raw, m, n), waypoints=_waypoints(npz, raw, m, n),
         metrics=metrics, limits=_resolve_limits(vehicle, config, metrics, cpath, mpath),
-        name=name,
+        name=name, world=_world(npz, raw, n),
     )
+
+
+def _world(npz: Path, raw: dict, n: int) -> World:
+    try:
+        return world_from_arrays(raw, n)
+    except ValueError as e:
+        raise _err(npz, "world", str(e)) from None
 
 
 def _read_npz(npz: Path, required) -> dict:

@@ -32,6 +32,8 @@ from jaxplan.config.resolve import (
 from jaxplan.config.schema import (
     MAX_SEED,
     MAX_SWEEP_POINTS,
+    OBSTACLE_KEYS,
+    OBSTACLE_KINDS,
     ROBOT_KEYS,
     SECTION_CONFIG,
     TOP_KEYS,
@@ -40,12 +42,14 @@ from jaxplan.config.schema import (
     FaultsConfig,
     LimitsConfig,
     Name,
+    ObstacleConfig,
     PlannerConfig,
     RobotConfig,
     ScenarioConfig,
     Seed,
     SimConfig,
     SweepConfig,
+    WorkspaceConfig,
 )
 from jaxplan.fields import (
     MAX_ROBOTS,
@@ -383,11 +387,31 @@ def _parse(data: Any, source: str) -> Config:
         raise InvalidValue("sim.backend", "'mjx' simulates quadrotors and needs 3-D positions; "
                                       "use 'ideal' for a 2-D config")
     sweep = _parse_sweep(t.get("sweep", {}), planner, seed)
+    N = dim or len(robots[0].start)
+    workspace = validate_value(WorkspaceConfig, as_table(t.get("workspace", {}), "workspace"),
+                               "workspace", dim=N)
+    obstacles = _parse_obstacles(t.get("obstacles", []), N)
     config = Config(name=name, description=description, seed=seed, planner=planner,
                     limits=limits, sim=sim, robots=robots, scenario=scenario, sweep=sweep,
-                    faults=faults, source=source)
+                    faults=faults, workspace=workspace, obstacles=obstacles, source=source)
     _check_fleet(config, robot_keys)
     return config
+
+
+def _parse_obstacles(raw: Any, dim: int) -> tuple[ObstacleConfig, ...]:
+    if not isinstance(raw, (list, tuple)):
+        raise InvalidValue("obstacles", f"expected an array of tables ([[obstacles]]), got "
+                                        f"{show(raw)}")
+    out = []
+    for k, o in enumerate(raw):
+        key = f"obstacles[{k}]"
+        t = as_table(o, key)
+        check_keys(t, OBSTACLE_KEYS, key)
+        if "kind" not in t:
+            raise InvalidValue(f"{key}.kind", f"missing; choose one of "
+                                              f"{', '.join(repr(x) for x in OBSTACLE_KINDS)}")
+        out.append(validate_value(ObstacleConfig, t, key, dim=dim))
+    return tuple(out)
 
 
 def _check_fleet(config: Config, robot_keys: list[_RobotKeys]) -> None:

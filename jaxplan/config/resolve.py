@@ -19,6 +19,7 @@ from jaxplan.config.schema import (
 )
 from jaxplan.scenarios import PAPER_SCENARIOS, Scenario
 from jaxplan.vehicles import VEHICLES
+from jaxplan.world import World, obstacle_arrays
 
 
 def _dump(model: Any, **kw: Any) -> dict[str, Any]:
@@ -58,6 +59,11 @@ def config_to_dict(config: Config) -> dict[str, Any]:
         d["robots"] = [_robot_to_dict(r) for r in config.robots]
     d["sweep"] = _dump(config.sweep)
     d["faults"] = _dump(config.faults)
+    ws = _dump(config.workspace, exclude_none=True)
+    if ws:
+        d["workspace"] = ws
+    if config.obstacles:
+        d["obstacles"] = [_dump(o, exclude_none=True) for o in config.obstacles]
     return d
 
 
@@ -124,9 +130,23 @@ def assemble_scenario(config: Config, validate: bool) -> Scenario:
         rests.append([e == "rest" for e in r.end_state])
         gvs.append(list(r.goal_velocity))
     lim = config.limits
+    N = len(starts[0])
     return scenarios.make_scenario(config.name, names, np.array(starts), wps, rests, gvs,
                                    v_max=lim.v_max, a_max=lim.a_max, j_max=lim.j_max,
+                                   world=config_world(config, parts[0].world if parts else None,
+                                                      N),
                                    validate=validate)
+
+
+def config_world(config: Config, generated: World | None, N: int) -> World:
+    """The world of a config: the generator's (or :meth:`jaxplan.world.World.default`),
+    its workspace bounds replaced by those [workspace] gives, [[obstacles]] appended."""
+    base = generated if generated is not None else World.default(N)
+    ws = config.workspace
+    lo = np.array(ws.min, float) if ws.min is not None else base.lo
+    hi = np.array(ws.max, float) if ws.max is not None else base.hi
+    obstacles = base.obstacles() + [o.as_dict() for o in config.obstacles]
+    return World(lo, hi, *obstacle_arrays(obstacles, N))
 
 
 def build_scenario(config: Config) -> Scenario:

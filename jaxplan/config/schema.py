@@ -5,10 +5,12 @@ section and each generator takes."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Annotated, Any
 
 from pydantic import (
     AfterValidator,
+    BeforeValidator,
     ConfigDict,
     Strict,
     model_validator,
@@ -21,6 +23,7 @@ from jaxplan.fields import (
     EndState,
     FieldProblem,
     Position,
+    PositiveLength,
     VehicleName,
     integer,
     number,
@@ -188,6 +191,83 @@ class FaultsConfig:
     frozen_mode: string(one_of(FROZEN_MODES)) = "silent"  # "silent" | "stale" (keeps sending)
 
 
+def _bound_vector(v: Any, info) -> tuple:
+    """A workspace bound: N numbers, each finite or +-inf (TOML's inf), never nan."""
+    if not isinstance(v, (list, tuple)):
+        raise FieldProblem(f"expected an array of 2 or 3 numbers (inf for unbounded), got "
+                           f"{show(v)}")
+    dim = (info.context or {}).get("dim")
+    if dim is not None and len(v) != dim:
+        raise FieldProblem(f"expected {dim} coordinates (the config is {dim}-D), got {len(v)}")
+    for k, x in enumerate(v):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or math.isnan(x):
+            raise FieldProblem(f"expected a number or +-inf, got {show(x)}", key=f"[{k}]")
+    return tuple(float(x) for x in v)
+
+
+Bound = Annotated[tuple[float, ...], BeforeValidator(_bound_vector)]
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class WorkspaceConfig:
+    """[workspace]: every robot's whole body stays in min <= p <= max (m, per axis;
+    -inf / inf: unbounded).  None (not given): the default, in 3-D min = [-inf, -inf,
+    0] (the ground) and max = [inf, inf, inf]; in 2-D unbounded; a generator's world
+    (e.g. low_ceiling's ceiling) where the scenario has one."""
+
+    min: Bound = None
+    max: Bound = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WorkspaceConfig:
+        if self.min is not None and self.max is not None:
+            if len(self.min) != len(self.max):
+                raise FieldProblem(f"max has {len(self.max)} coordinates, min "
+                                   f"{len(self.min)}", key="max")
+            for d, (a, b) in enumerate(zip(self.min, self.max, strict=True)):
+                if not a < b:
+                    raise FieldProblem(f"max[{d}] = {b:g} must be above min[{d}] = {a:g}",
+                                       key="max")
+        return self
+
+
+OBSTACLE_KINDS = ("sphere", "box", "cylinder")
+OBSTACLE_KEYS = ("kind", "center", "radius", "half_extents", "half_height")
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class ObstacleConfig:
+    """One [[obstacles]] entry: a static, axis-aligned obstacle (m).  kind = "sphere"
+    (center, radius), "box" (center, half_extents) or "cylinder" (vertical axis:
+    center, radius, half_height; in 2-D a disc: center, radius)."""
+
+    kind: string(one_of(OBSTACLE_KINDS))
+    center: Position
+    radius: PositiveLength = None
+    half_extents: Position = None
+    half_height: PositiveLength = None
+
+    @model_validator(mode="after")
+    def _keys_of_kind(self) -> ObstacleConfig:
+        need = {"sphere": ("radius",), "box": ("half_extents",),
+                "cylinder": ("radius", "half_height") if len(self.center) == 3 else ("radius",)}
+        for key in need[self.kind]:
+            if getattr(self, key) is None:
+                raise FieldProblem(f"missing; a {self.kind} needs {' and '.join(need[self.kind])}",
+                                   key=key)
+        for key in ("radius", "half_extents", "half_height"):
+            if key not in need[self.kind] and getattr(self, key) is not None:
+                raise FieldProblem(f"a {self.kind} takes no {key} (it takes "
+                                   f"{', '.join(('center',) + need[self.kind])})", key=key)
+        if self.half_extents is not None and any(h <= 0 for h in self.half_extents):
+            raise FieldProblem(f"must be positive, got {show(list(self.half_extents))}",
+                               key="half_extents")
+        return self
+
+    def as_dict(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in OBSTACLE_KEYS if getattr(self, k) is not None}
+
+
 @dataclass(frozen=True)
 class RobotConfig:
     """One [[robots]] entry, resolved.
@@ -259,6 +339,8 @@ class Config:
     scenario: ScenarioConfig | None
     sweep: SweepConfig
     faults: FaultsConfig
+    workspace: WorkspaceConfig = WorkspaceConfig()
+    obstacles: tuple[ObstacleConfig, ...] = ()
     source: str = dataclasses.field(default="<string>", compare=False)
 
     @property
@@ -270,7 +352,7 @@ class Config:
 
 
 TOP_KEYS = ("name", "description", "seed", "planner", "limits", "sim", "robots",
-             "scenario", "sweep", "faults")
+             "scenario", "sweep", "faults", "workspace", "obstacles")
 ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
 FAULT_KEYS = tuple(FaultsConfig.__dataclass_fields__)
 # Each generator's keys, in the order they are written out (declared in

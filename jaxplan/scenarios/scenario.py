@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxplan.vehicles import VEHICLES
+from jaxplan.world import World, point_problems
 
 SAFETY_MARGIN = 0.2        # m, added to r_i + r_j by generators that choose spacings
 PAPER_JITTER = 0.02        # m, seeded jitter of every paper start and goal
@@ -49,6 +50,8 @@ class Scenario:
         has_goal_velocity: (M, W) True = free end with the given end velocity.
         radius: (M,) collision radius, m.
         v_max, a_max, j_max: (M,) planner limits, m/s, m/s^2, m/s^3.
+        world: the :class:`jaxplan.world.World` (workspace and obstacles); default
+            :meth:`jaxplan.world.World.default` (in 3-D the ground z >= 0).
 
     Equality is identity (arrays); compare fields with numpy.
     """
@@ -64,6 +67,14 @@ class Scenario:
     v_max: np.ndarray
     a_max: np.ndarray
     j_max: np.ndarray
+    world: World | None = None
+
+    def __post_init__(self):
+        if self.world is None:
+            object.__setattr__(self, "world", World.default(int(self.start.shape[1])))
+        elif self.world.dim != self.start.shape[1]:
+            raise ScenarioError(f"the world is {self.world.dim}-D, the robots "
+                                f"{self.start.shape[1]}-D")
 
     @property
     def num_robots(self) -> int:
@@ -103,12 +114,17 @@ class Scenario:
         """A copy with another name."""
         return Scenario(**{**self.__dict__, "name": name})
 
+    def with_world(self, world: World) -> Scenario:
+        """A copy in another world (not validated: see :func:`validate_scenario`)."""
+        return Scenario(**{**self.__dict__, "world": world})
+
 
 class Problem(NamedTuple):
     """One violated scenario invariant (see :func:`scenario_problems`).
 
-    kind: "coincident_start" | "goal_spacing" | "ground"; robot / other: robot indices
-    (other is None for "ground"); waypoint: index or None (a start); message: a sentence.
+    kind: "coincident_start" | "goal_spacing" | "ground" | "workspace" | "obstacle";
+    robot / other: robot indices (other is None for the world's kinds); waypoint: index
+    or None (a start); message: a sentence.
     """
 
     kind: str
@@ -151,6 +167,7 @@ def make_scenario(
     v_max=None,
     a_max=None,
     j_max=None,
+    world: World | None = None,
     validate: bool = True,
 ) -> Scenario:
     """Assemble (and by default validate) a :class:`Scenario`.
@@ -165,6 +182,7 @@ def make_scenario(
         goal_velocity: None, or per robot a length-W_i sequence of (N,) velocities or
             None (no end velocity at that waypoint), or an (M, W, N) array (all given).
         v_max, a_max, j_max: scalar or (M,) limit overrides; default per vehicle.
+        world: workspace and obstacles (default: :meth:`jaxplan.world.World.default`).
         validate: run :func:`validate_scenario` (raises ScenarioError).
     """
     vehicles = tuple(str(v) for v in vehicles)
@@ -193,6 +211,7 @@ def make_scenario(
         has_goal_velocity=_readonly(has),
         radius=_readonly(np.array([VEHICLES[v].radius for v in vehicles], dtype=np.float64)),
         **{k: _readonly(v) for k, v in limits.items()},
+        world=world,
     )
     if validate:
         validate_scenario(sc)
@@ -282,8 +301,9 @@ def scenario_problems(sc: Scenario, max_problems: int = 10,
 
     Checks: values finite; radii and limits positive; no two starts exactly equal
     (closer than rho_ij is allowed: the paper's stacked start); for each waypoint index,
-    no two goals closer than rho_ij = r_i + r_j; for N = 3, no start or goal below
-    z = radius (inside the ground).  ``label(i)`` names robot i in messages
+    no two goals closer than rho_ij = r_i + r_j; every start and goal inside the
+    world's workspace and clear of its obstacles by the robot's radius (in 3-D by default:
+    not below z = radius, inside the ground).  ``label(i)`` names robot i in messages
     (default "robot i").
     """
     lab = label or (lambda i: f"robot {i}")
@@ -327,22 +347,39 @@ def scenario_problems(sc: Scenario, max_problems: int = 10,
                 f"than their safety distance r_i + r_j = {rho[i, j]:.3g} m"))
             if len(out) >= max_problems:
                 return out
-    # Ground.
-    if N == 3:
-        for i in range(M):
-            r = sc.radius[i]
-            if sc.start[i, 2] < r:
-                out.append(Problem("ground", i, None, None,
-                                   f"{lab(i)}: start z = {sc.start[i, 2]:.3g} m is inside the "
-                                   f"ground (below its radius {r:.3g} m)"))
-            for w in range(sc.num_waypoints):
-                if sc.waypoints[i, w, 2] < r:
-                    out.append(Problem("ground", i, None, w,
-                                       f"{lab(i)}: goal (waypoint {w}) z = "
-                                       f"{sc.waypoints[i, w, 2]:.3g} m is inside the ground "
-                                       f"(below its radius {r:.3g} m)"))
+    # The world: starts and goals clear of the obstacles and inside the workspace by
+    # the robot's radius.
+    for i in range(M):
+        pts = [(None, sc.start[i])] + [(w, sc.waypoints[i, w]) for w in range(sc.num_waypoints)]
+        for w, p in pts:
+            probs = point_problems(sc.world, p, sc.radius[i])
+            if probs:
+                where = "start" if w is None else f"goal (waypoint {w})"
+                out.append(_world_problem(sc, i, w, where, p, *probs[0], lab))
+                if len(out) >= max_problems:
+                    return out
+                if w is not None:  # one goal per robot
                     break
     return out[:max_problems]
+
+
+def _world_problem(sc, i, w, where, p, what, k, gap, lab) -> Problem:
+    r = sc.radius[i]
+    if what == "obstacle":
+        return Problem("obstacle", i, None, w,
+                       f"{lab(i)}: {where} {format_vector(p)} is inside "
+                       f"{sc.world.describe(k)} (its body of radius {r:.3g} m overlaps it by "
+                       f"{-gap:.3g} m)")
+    N = sc.dim
+    ground = N == 3 and np.isfinite(sc.world.lo[2]) and p[2] - sc.world.lo[2] < r
+    if ground and sc.world.lo[2] == 0.0:
+        return Problem("ground", i, None, w,
+                       f"{lab(i)}: {where} z = {p[2]:.3g} m is inside the ground (below its "
+                       f"radius {r:.3g} m)")
+    return Problem("workspace", i, None, w,
+                   f"{lab(i)}: {where} {format_vector(p)} is outside the workspace "
+                   f"[{format_vector(sc.world.lo)}, {format_vector(sc.world.hi)}] by the "
+                   f"robot's radius {r:.3g} m")
 
 
 def validate_scenario(sc: Scenario) -> Scenario:

@@ -1,0 +1,280 @@
+"""The static world the robots move in: a workspace box and axis-aligned obstacles
+(the ``[workspace]`` and ``[[obstacles]]`` config sections, docs/DESIGN.md).
+
+A :class:`World` holds, on the host (numpy, read-only):
+
+    lo, hi   (N,)     m, the workspace: every robot's whole body stays in lo <= p <= hi
+                      (-inf / inf: unbounded); in 3-D the default is the ground,
+                      lo = [-inf, -inf, 0], hi = [inf, inf, inf]
+    kind     (K,)     SPHERE, BOX or CYLINDER (OBSTACLE_KINDS names them)
+    center   (K, N)   m
+    half     (K, N)   m, a box's half extents; a cylinder's half height in its last
+                      entry (3-D; its axis is vertical); unused for a sphere
+    radius   (K,)     m, a sphere's or a cylinder's radius; unused for a box
+
+In 2-D a cylinder is a disc (its radius only) and a sphere is the same disc.
+
+Distances (:func:`signed_distance`) are the exact Euclidean signed distances to the
+obstacle's surface (negative inside), written so that they are smooth enough for the
+SQP: outside a convex body the distance is C^1 (its gradient is the unit normal of the
+nearest surface point) with a bounded, piecewise continuous Hessian; the square roots
+are taken as sqrt(s + e) - sqrt(e) with e = SQRT_EPS2 (1e-12 m^2), which is smooth at 0
+and never above the exact value (so it errs on the safe side by at most 1e-6 m); inside
+a box or a cylinder the distance is the largest face distance (a max: its gradient
+points out through the nearest face).  The workspace's faces are half-spaces with
+signed distance n . (p - c).
+
+The planner's NLP sees the world as "static rows" (:class:`StaticRows`): the obstacles
+followed by the finite workspace faces (:func:`static_rows`), each with the same
+signed-distance function (:func:`row_distance`), padded with masked rows to a fixed
+count so that a run with K obstacles compiles once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+SPHERE, BOX, CYLINDER, PLANE = 0, 1, 2, 3
+OBSTACLE_KINDS = ("sphere", "box", "cylinder")  # index = kind code
+SQRT_EPS2 = 1e-12  # m^2: the smoothing of the square roots (module doc)
+
+
+def _readonly(a) -> np.ndarray:
+    a = np.array(a, dtype=np.float64)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class World:
+    """Workspace bounds and static obstacles (module doc for the fields)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    kind: np.ndarray
+    center: np.ndarray
+    half: np.ndarray
+    radius: np.ndarray
+
+    def __post_init__(self):
+        N = np.asarray(self.lo).shape[0]
+        for name in ("lo", "hi", "center", "half", "radius"):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+        kind = np.array(self.kind, dtype=np.int32).reshape(-1)
+        kind.setflags(write=False)
+        object.__setattr__(self, "kind", kind)
+        K = kind.shape[0]
+        if self.hi.shape != (N,) or self.center.shape != (K, N) or self.half.shape != (K, N) \
+                or self.radius.shape != (K,):
+            raise ValueError(f"World: inconsistent shapes lo {self.lo.shape}, hi "
+                             f"{self.hi.shape}, kind {kind.shape}, center {self.center.shape}, "
+                             f"half {self.half.shape}, radius {self.radius.shape}")
+
+    @staticmethod
+    def default(N: int) -> World:
+        """No obstacles; in 3-D the ground (z >= 0), in 2-D unbounded."""
+        lo = np.full(N, -np.inf)
+        if N == 3:
+            lo[2] = 0.0
+        return World(lo, np.full(N, np.inf), np.zeros(0, np.int32), np.zeros((0, N)),
+                     np.zeros((0, N)), np.zeros(0))
+
+    @staticmethod
+    def unbounded(N: int) -> World:
+        """No obstacles and no workspace (the paper's empty space)."""
+        return World(np.full(N, -np.inf), np.full(N, np.inf), np.zeros(0, np.int32),
+                     np.zeros((0, N)), np.zeros((0, N)), np.zeros(0))
+
+    @property
+    def dim(self) -> int:
+        return int(self.lo.shape[0])
+
+    @property
+    def num_obstacles(self) -> int:
+        return int(self.kind.shape[0])
+
+    @property
+    def num_faces(self) -> int:
+        """Finite workspace faces (the half-spaces the NLP constrains)."""
+        return int(np.sum(np.isfinite(self.lo)) + np.sum(np.isfinite(self.hi)))
+
+    def with_obstacles(self, obstacles) -> World:
+        """A copy with these obstacles (dicts as in the config: kind, center, radius,
+        half_extents, half_height) in place of the current ones."""
+        kind, center, half, radius = obstacle_arrays(obstacles, self.dim)
+        return World(self.lo, self.hi, kind, center, half, radius)
+
+    def obstacles(self) -> list[dict]:
+        """The obstacles as config dicts (what ``[[obstacles]]`` holds)."""
+        out = []
+        for k in range(self.num_obstacles):
+            kd = OBSTACLE_KINDS[int(self.kind[k])]
+            d = {"kind": kd, "center": [float(x) for x in self.center[k]]}
+            if kd == "box":
+                d["half_extents"] = [float(x) for x in self.half[k]]
+            else:
+                d["radius"] = float(self.radius[k])
+                if kd == "cylinder" and self.dim == 3:
+                    d["half_height"] = float(self.half[k, -1])
+            out.append(d)
+        return out
+
+    def describe(self, k: int) -> str:
+        """Obstacle k for a message: 'obstacles[3] (cylinder at [1, 2, 1.5])'."""
+        c = ", ".join(f"{float(x):.4g}" for x in self.center[k])
+        return f"obstacles[{k}] ({OBSTACLE_KINDS[int(self.kind[k])]} at [{c}])"
+
+
+def obstacle_arrays(obstacles, N: int):
+    """(kind (K,), center (K, N), half (K, N), radius (K,)) of config obstacle dicts."""
+    K = len(obstacles)
+    kind = np.zeros(K, np.int32)
+    center = np.zeros((K, N))
+    half = np.zeros((K, N))
+    radius = np.zeros(K)
+    for k, o in enumerate(obstacles):
+        kd = OBSTACLE_KINDS.index(o["kind"])
+        kind[k] = kd
+        center[k] = o["center"]
+        if kd == BOX:
+            half[k] = o["half_extents"]
+        else:
+            radius[k] = o["radius"]
+            if kd == CYLINDER and N == 3:
+                half[k, -1] = o["half_height"]
+    return kind, center, half, radius
+
+
+# trajectories.npz keys of the world (docs/DESIGN.md "A run directory")
+WORLD_KEYS = ("world_lo", "world_hi", "obstacle_kind", "obstacle_center", "obstacle_half",
+              "obstacle_radius")
+
+
+def world_arrays(world: World) -> dict[str, np.ndarray]:
+    """The world as trajectories.npz stores it (WORLD_KEYS)."""
+    return {"world_lo": world.lo, "world_hi": world.hi, "obstacle_kind": world.kind,
+            "obstacle_center": world.center, "obstacle_half": world.half,
+            "obstacle_radius": world.radius}
+
+
+def world_from_arrays(raw, N: int) -> World:
+    """The world of a run's arrays (WORLD_KEYS); a run without them was planned in
+    unbounded empty space (:meth:`World.unbounded`).  Raises ValueError on bad shapes."""
+    if not all(k in raw for k in WORLD_KEYS):
+        return World.unbounded(N)
+    kind = np.asarray(raw["obstacle_kind"])
+    if kind.size and (kind.min() < 0 or kind.max() >= len(OBSTACLE_KINDS)):
+        raise ValueError(f"obstacle_kind: codes must lie in [0, {len(OBSTACLE_KINDS)})")
+    w = World(*(np.asarray(raw[k]) for k in WORLD_KEYS))
+    if w.dim != N:
+        raise ValueError(f"world_lo: the world is {w.dim}-D, the run {N}-D")
+    return w
+
+
+# ---------------------------------------------------------------------- distances
+def _safe_norm(x, xp, axis=-1):
+    """sqrt(|x|^2 + e) - sqrt(e): smooth, within 1e-6 below |x| (module doc)."""
+    return xp.sqrt(xp.sum(x * x, axis=axis) + SQRT_EPS2) - np.sqrt(SQRT_EPS2)
+
+
+def _rounded(q, xp):
+    """Signed distance from face distances q (..., m): |max(q, 0)| + min(max_i q_i, 0)."""
+    out = _safe_norm(xp.maximum(q, 0.0), xp)
+    inside = xp.minimum(xp.max(q, axis=-1), 0.0)
+    return out + inside
+
+
+def signed_distance(kind, center, half, radius, p, xp=np):
+    """Signed distance (m, negative inside) from points p (..., N) to the rows
+    (kind (R,), center (R, N), half (R, N), radius (R,)): (..., R).  ``kind`` may hold
+    PLANE rows: a half-space {n . (x - c) >= 0} with unit normal n = half, distance
+    n . (p - c) (positive on the free side).  ``xp``: numpy or jax.numpy."""
+    N = p.shape[-1]
+    d = p[..., None, :] - center  # (..., R, N)
+    sph = _safe_norm(d, xp) - radius
+    box = _rounded(xp.abs(d) - half, xp)
+    if N == 3:
+        rho = _safe_norm(d[..., :2], xp)
+        q = xp.stack([rho - radius, xp.abs(d[..., 2]) - half[..., 2]], axis=-1)
+        cyl = _rounded(q, xp)
+    else:
+        cyl = sph
+    pln = xp.sum(d * half, axis=-1)
+    return xp.where(kind == SPHERE, sph, xp.where(kind == BOX, box,
+                                                  xp.where(kind == CYLINDER, cyl, pln)))
+
+
+# ---------------------------------------------------------------------- NLP rows
+class StaticRows(NamedTuple):
+    """The world as the NLP sees it (a pytree): R rows, obstacles then workspace faces,
+    padded; mask False = padding (ignored)."""
+
+    kind: object  # (R,) int32
+    center: object  # (R, N)
+    half: object  # (R, N)
+    radius: object  # (R,)
+    mask: object  # (R,) bool
+
+
+def static_rows(world: World, rows: int | None = None) -> StaticRows:
+    """The obstacles and the finite workspace faces of ``world`` as R = ``rows`` static
+    rows (default: exactly those; more: masked padding; numpy arrays)."""
+    N = world.dim
+    kinds = [world.kind]
+    centers = [world.center]
+    halves = [world.half]
+    radii = [world.radius]
+    for bound, sign in ((world.lo, 1.0), (world.hi, -1.0)):
+        for i in np.flatnonzero(np.isfinite(bound)):
+            c = np.zeros(N)
+            c[i] = bound[i]
+            n = np.zeros(N)
+            n[i] = sign
+            kinds.append(np.array([PLANE], np.int32))
+            centers.append(c[None])
+            halves.append(n[None])
+            radii.append(np.zeros(1))
+    kind = np.concatenate(kinds).astype(np.int32)
+    center = np.concatenate(centers, axis=0).reshape(-1, N)
+    half = np.concatenate(halves, axis=0).reshape(-1, N)
+    radius = np.concatenate(radii)
+    n = kind.shape[0]
+    R = n if rows is None else rows
+    if R < n:
+        raise ValueError(f"static_rows: the world has {n} rows, more than {R}")
+    pad = R - n
+    mask = np.concatenate([np.ones(n, bool), np.zeros(pad, bool)])
+    kind = np.concatenate([kind, np.full(pad, PLANE, np.int32)])
+    center = np.concatenate([center, np.zeros((pad, N))])
+    # padding: a far-away plane (finite distances everywhere)
+    pad_half = np.zeros((pad, N))
+    if pad:
+        pad_half[:, 0] = 1.0
+    half = np.concatenate([half, pad_half])
+    radius = np.concatenate([radius, np.zeros(pad)])
+    return StaticRows(kind, center, half, radius, mask)
+
+
+def no_static_rows(N: int) -> StaticRows:
+    """Zero static rows (an NLP without a world)."""
+    return static_rows(World.unbounded(N))
+
+
+# ---------------------------------------------------------------------- checks
+def point_problems(world: World, p, radius) -> list[tuple[str, int | None, float]]:
+    """Where a robot of ``radius`` at point p (N,) overlaps the world: a list of
+    (what, obstacle index or None for the workspace, clearance m < 0)."""
+    p = np.asarray(p, np.float64)
+    out = []
+    for i in range(world.dim):
+        for bound, gap in ((world.lo[i], p[i] - world.lo[i]), (world.hi[i], world.hi[i] - p[i])):
+            if np.isfinite(bound) and gap - radius < 0:
+                out.append(("workspace", None, float(gap - radius)))
+    if world.num_obstacles:
+        sd = signed_distance(world.kind, world.center, world.half, world.radius, p)
+        for k in np.flatnonzero(sd - radius < 0):
+            out.append(("obstacle", int(k), float(sd[k] - radius)))
+    return out
