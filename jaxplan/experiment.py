@@ -35,7 +35,7 @@ from jaxplan.planner import (
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
 from jaxplan.timing import timed
-from jaxplan.world import world_arrays
+from jaxplan.world import StaticRows, static_rows, world_arrays
 
 T_MIN = 0.05  # s, lower bound on every plan's horizon
 ACCEPT_VIOLATION = 1e-3  # m^2: largest collision-constraint violation accepted at max-iters
@@ -59,13 +59,15 @@ class RunResult:
     run_s: float
 
 
-def structures(config: Config, *, only_needed: bool = True) -> RolloutStructure:
+def structures(config: Config, *, only_needed: bool = True,
+               n_static: int | None = None) -> RolloutStructure:
     """Static structures of a config (shapes other than M, N, W).
 
     only_needed: leave out the coast constraints when no robot of the config's own
     scenario ever has a free end (they would be inactive rows; measured: 14% of the
     closed loop's time on antipodal_10).  A sweep, whose grid may hold other scenarios,
-    passes False.
+    passes False.  n_static: the NLPs' static rows (obstacles and workspace faces);
+    default: those of the config's own world (a sweep passes the most of its grid).
     """
     pc = config.planner
     sc = build_scenario(config)
@@ -75,6 +77,7 @@ def structures(config: Config, *, only_needed: bool = True) -> RolloutStructure:
         n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
         collision=pc.collision, n_collision_samples=_round_up_to_4(pc.n_samples),
         n_coast_samples=coast,
+        n_static=static_rows(sc.world).mask.shape[0] if n_static is None else n_static,
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults
@@ -91,8 +94,10 @@ def _round_up_to_4(n: int) -> int:
     return max(4, 4 * math.ceil(n / 4))
 
 
-def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = None) -> FleetParams:
-    """Traced fleet parameters from a config and its scenario."""
+def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = None,
+                 n_static: int | None = None) -> FleetParams:
+    """Traced fleet parameters from a config and its scenario (the world's static rows
+    padded to ``n_static``, default exactly its own)."""
     pc = config.planner
     w = weights or Weights(*(jnp.asarray(float(x)) for x in
                              (pc.q_dynm, pc.q_obs, pc.q_lim, pc.k_t, pc.k_p)))
@@ -105,7 +110,15 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
         robot_mask=jnp.ones((M,), bool), dt=jnp.asarray(1.0 / pc.replan_hz),
         t_min=jnp.asarray(T_MIN), prediction_weight=jnp.asarray(pc.k_t / pc.q_dynm),
         accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
+        static=_static(scenario, n_static),
     )
+
+
+def _static(scenario: Scenario, n_static: int | None):
+    rows = static_rows(scenario.world, n_static)
+    if rows.mask.shape[0] == 0:
+        return None
+    return StaticRows(*(jnp.asarray(a) for a in rows))
 
 
 def task_of(config: Config, scenario: Scenario) -> Task:

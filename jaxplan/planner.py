@@ -62,6 +62,7 @@ from jaxplan.nlp import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.predict import predict_arrays, quintic_terms
 from jaxplan.pytree import tree_where
 from jaxplan.trajectory import Trajectory, compose_matrix
+from jaxplan.world import StaticRows, signed_distance
 
 # m: the most a sender's radius grows for an old message.  A silent robot is taken to
 # hold its last known position within this much: with 2 m a robot frozen mid-course
@@ -112,7 +113,9 @@ class FleetParams(NamedTuple):
     invisible to others).  dt: () replan period, s.  t_min: () s, lower bound on T.
     prediction_weight: () time weight w of the closed-form predictions.
     accept_violation: () largest inequality violation (m^2) accepted from a solve that
-    hit its iteration cap.  settings: solve.SolverSettings.
+    hit its iteration cap.  settings: solve.SolverSettings.  static: the world's
+    obstacles and workspace faces (:class:`jaxplan.world.StaticRows`, R =
+    ``structure.nlp.n_static`` rows; None when R = 0), the same for every robot.
     """
 
     weights: Weights
@@ -124,6 +127,7 @@ class FleetParams(NamedTuple):
     prediction_weight: jax.Array
     accept_violation: jax.Array
     settings: solve.SolverSettings
+    static: StaticRows | None = None
 
 
 class Views(NamedTuple):
@@ -302,6 +306,10 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, flo
     other_mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
     goal_p, inflate, goal_moved = free_goals(goal_p, p, preds.end_state()[0], fp.radius,
                                              inflate, other_mask, floor)
+    if fp.static is not None and structure.nlp.n_static:
+        # a goal moved off an occupant must not land in an obstacle or a wall
+        goal_clear = clear_of_static(goal_p, fp.radius, fp.static)
+        goal_p = jnp.where(goal_moved[:, None], goal_clear, goal_p)
     # a robot whose goal moved waits there: a rest end, not a free end it would fly
     # through at speed (and back, every replan)
     rest = rest | goal_moved
@@ -324,6 +332,8 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, flo
         others=preds, other_radius=other_radius, other_mask=other_mask,
         radius=fp.radius, weights=jax.tree.map(lambda w: jnp.broadcast_to(w, (M,)), fp.weights),
         limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
+        static=None if fp.static is None or not structure.nlp.n_static else jax.tree.map(
+            lambda a: jnp.broadcast_to(a, (M,) + a.shape), fp.static),
     )
     return params, goal_moved, idx, mult_prev
 
@@ -379,7 +389,8 @@ def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol, p, v, a
     # on ties); computed only when some robot needs it
     def choose():
         viol = lambda tr: plan_violation(tr, params.others, params.radius,
-                                         params.other_radius, params.other_mask)
+                                         params.other_radius, params.other_mask,
+                                         fp.static if nlp.n_static else None)
         v_sol = jnp.where(usable, viol(sol.traj), jnp.inf)
         v_prev = jnp.where(prev_ok, viol(prev), jnp.inf)
         return pick_fallback(v_sol, v_prev, viol(brake))
@@ -407,18 +418,51 @@ def pick_fallback(v_sol, v_prev, v_brake, tol: float = 1e-6):
     return jnp.where(use_sol, BEST_EFFORT, jnp.where(use_prev, KEPT_PREVIOUS, BRAKING))
 
 
-def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, mask):
-    """How deep each plan comes into the others' planning distances over the next
-    CHECK_HORIZON_S: max over CHECK_SAMPLES instants and others of rho_ij - d_ij (m),
-    0 when clear.  plans: (M,) trajectories starting now (holding or coasting after
-    their end); others: (M, Mo) predictions; radius (M,); other_radius, mask (M, Mo)."""
+def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, mask,
+                   static: StaticRows | None = None):
+    """How deep each plan comes into the others' planning distances, or into the static
+    rows (obstacles, workspace faces) by its radius, over the next CHECK_HORIZON_S: max
+    over CHECK_SAMPLES instants, others and rows of rho_ij - d_ij and r_i - sd (m), 0
+    when clear.  plans: (M,) trajectories starting now (holding or coasting after their
+    end); others: (M, Mo) predictions; radius (M,); other_radius, mask (M, Mo)."""
     t = jnp.arange(1, CHECK_SAMPLES + 1) * (CHECK_HORIZON_S / CHECK_SAMPLES)
     me = plans.evaluate(t[:, None])  # (K, M, N)
     ot = others.evaluate(t[:, None, None])  # (K, M, Mo, N)
     d = jnp.sqrt(jnp.sum((me[:, :, None] - ot) ** 2, axis=-1))
     rho = radius[:, None] + other_radius
     pen = jnp.where(mask[None] & jnp.isfinite(d), rho[None] - d, 0.0)
-    return jnp.maximum(jnp.max(pen, axis=(0, 2)), 0.0)
+    worst = jnp.maximum(jnp.max(pen, axis=(0, 2)), 0.0)
+    if static is not None:
+        sd = signed_distance(static.kind, static.center, static.half, static.radius, me,
+                             xp=jnp)  # (K, M, R)
+        pen_s = jnp.where(static.mask & jnp.isfinite(sd), radius[None, :, None] - sd, 0.0)
+        worst = jnp.maximum(worst, jnp.max(pen_s, axis=(0, 2), initial=0.0))
+    return worst
+
+
+STATIC_PROJECTIONS = 3  # passes of clear_of_static
+
+
+def clear_of_static(goal, radius, static: StaticRows):
+    """Goals (M, N) moved out of the static rows: a goal whose clearance sd - r to a row
+    is below GOAL_CLEARANCE is pushed along that row's distance gradient until it is
+    (STATIC_PROJECTIONS passes, the deepest row first; exact for planes and spheres,
+    for boxes and cylinders outside).  Finite goals stay finite."""
+    def gap(g, r):
+        return signed_distance(static.kind, static.center, static.half, static.radius, g,
+                               xp=jnp) - r
+
+    def one(g, r):
+        for _ in range(STATIC_PROJECTIONS):
+            gp = jnp.where(static.mask, gap(g, r), jnp.inf)
+            k = jnp.argmin(gp)
+            short = GOAL_CLEARANCE - gp[k]
+            n = jax.grad(lambda q, kk=k: gap(q, r)[kk])(g)
+            n = n / jnp.maximum(jnp.linalg.norm(n), 1e-12)
+            g = jnp.where((short > 0) & jnp.all(jnp.isfinite(n)), g + short * n, g)
+        return g
+
+    return jax.vmap(one)(goal, radius)
 
 
 def free_goals(goal_p, p, occupant, radius, inflate, mask, floor=None):

@@ -91,6 +91,7 @@ from jaxplan.sweep_csv import (
     row_key,
 )
 from jaxplan.timing import timed
+from jaxplan.world import static_rows
 
 __all__ = [
     "DEFAULT_BATCH",
@@ -418,9 +419,11 @@ def _shards(batch: int) -> int:
     return n if jax.default_backend() == "cpu" and n > 1 and batch % n == 0 else 1
 
 
-def _structure(config: Config, n_dim: int) -> RolloutStructure:
-    """The config's static structure for fleets in n_dim dimensions."""
-    st = structures(config, only_needed=False)  # the grid may hold free-end scenarios
+def _structure(config: Config, n_dim: int, n_static: int | None = None) -> RolloutStructure:
+    """The config's static structure for fleets in n_dim dimensions in worlds of at most
+    n_static static rows (default: the config's own world's)."""
+    # the grid may hold free-end scenarios
+    st = structures(config, only_needed=False, n_static=n_static)
     nlp = dataclasses.replace(st.planner.nlp, n_dim=n_dim)
     return dataclasses.replace(st, planner=dataclasses.replace(st.planner, nlp=nlp))
 
@@ -486,9 +489,11 @@ def _build_scenarios(config: Config, todo: list[SweepPoint]) -> dict[tuple[str, 
     return built
 
 
-def _prepare(config: Config, point: SweepPoint, scenario: Scenario, m_pad: int) -> _Prepared:
-    """A point's fleet parameters and task, as numpy, padded to m_pad robots."""
-    fp = fleet_params(config, scenario, _weights(config, point.q_obs, point.q_lim))
+def _prepare(config: Config, point: SweepPoint, scenario: Scenario, m_pad: int,
+             r_pad: int) -> _Prepared:
+    """A point's fleet parameters and task, as numpy, padded to m_pad robots and r_pad
+    static rows."""
+    fp = fleet_params(config, scenario, _weights(config, point.q_obs, point.q_lim), r_pad)
     fp, task = _pad_robots(jax.tree.map(np.asarray, fp),
                            jax.tree.map(np.asarray, task_of(config, scenario)), m_pad)
     return _Prepared(point, scenario, fp, task)
@@ -526,8 +531,9 @@ def _run_group(config: Config, shape_key, points: list[SweepPoint], built, batch
     last one padded by repeating its last run; each batch's rows appended to sweep.csv."""
     n_dim, n_wp = shape_key
     m_pad = max(built[(p.scenario, p.seed)].num_robots for p in points)
-    structure = _structure(config, n_dim)
-    preps = [_prepare(config, p, built[(p.scenario, p.seed)], m_pad) for p in points]
+    r_pad = max(static_rows(built[(p.scenario, p.seed)].world).mask.shape[0] for p in points)
+    structure = _structure(config, n_dim, r_pad)
+    preps = [_prepare(config, p, built[(p.scenario, p.seed)], m_pad, r_pad) for p in points]
     compiled = None
     for i in range(0, len(preps), batch):
         chunk = preps[i:i + batch]

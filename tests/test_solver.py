@@ -458,9 +458,10 @@ def test_backtracking_goes_just_past_the_first_al_branch_crossing():
 def _load_lane(path):
     z = np.load(path)
     g = lambda k: jnp.asarray(z[k])
-    sub = lambda cls, pre: cls(*(g(f"{pre}.{f}") for f in cls._fields))
+    # (fields added after the file was made, e.g. the static rows, take their defaults)
+    sub = lambda cls, pre: cls(*(g(f"{pre}.{f}") for f in cls._fields if f"{pre}.{f}" in z))
     own = {f: g(f"P.{f}") for f in nlp.NLPParams._fields
-           if f not in ("others", "weights", "limits")}
+           if f not in ("others", "weights", "limits") and f"P.{f}" in z}
     P = nlp.NLPParams(**own, others=sub(Trajectory, "P.others"),
                         weights=sub(nlp.Weights, "P.weights"),
                         limits=sub(nlp.Limits, "P.limits"))

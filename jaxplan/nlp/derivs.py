@@ -23,8 +23,11 @@ from jaxplan.nlp.terms import (
     coast_time,
     collision_rows,
     has_sampled_collision,
+    needs_col_features,
     paper_collision,
     sexp,
+    static_gap,
+    static_local,
 )
 from jaxplan.nlp.types import DIST_EPS2, Multipliers
 from jaxplan.trajectory import Trajectory
@@ -312,11 +315,18 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
                                        axis=(1, 2))
     if structure.paper:
         val = val + jax.vmap(lambda z: paper_collision(pack(z, tau), params, structure, kind))(zs)
-    if has_sampled_collision(structure):
-        op = prepare_others(params.others, params.other_mask) if others is None else others
+    if needs_col_features(structure):
         s, off, w, on = collision_rows(params, structure)
         bp, C = _col_affine(params, structure, kind)(tau)
         p = bp[0][None] + jnp.einsum("cnz,kz->cnk", zs, C[0])  # (C, N, K)
+    if structure.static_terms:
+        y = jnp.concatenate([jnp.swapaxes(p, 1, 2), jnp.broadcast_to(T, p.shape[:1] + (
+            p.shape[2], 1))], axis=-1)  # (C, K, N + 1)
+        one = lambda yk, wk, lk, ok: static_local(yk, wk, lk, ok, params, structure, mu)
+        val = val + jnp.sum(jax.vmap(jax.vmap(one), in_axes=(0, None, None, None))(
+            y, w, mult.static, on), axis=1)
+    if has_sampled_collision(structure):
+        op = prepare_others(params.others, params.other_mask) if others is None else others
         X = p[:, :, None, :] - others_jet(op, T * s + off, 0)[0][None]  # (C, N, Mo, K)
         r = jnp.sum(X * X, axis=1)  # (C, Mo, K)
         mask = params.other_mask[:, None]
@@ -334,7 +344,7 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
 
 
 def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, mu,
-                      with_g: bool, others: OthersPrep | None):
+                      with_g: bool, others: OthersPrep | None, jets=None):
     """(value, gradient, Hessian, g_collision) of the sampled collision terms (barrier
     and the AL terms of the collision constraints) for :func:`merit_derivs`; g_collision
     (n_col, Mo) the constraints where ``with_g`` and the mode has them, else ones."""
@@ -343,7 +353,7 @@ def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, 
     gc = jnp.ones((structure.n_col, Mo), x.dtype)
     op = prepare_others(params.others, params.other_mask) if others is None else others
     s, off, w, on = collision_rows(params, structure)
-    jets = _col_jets(params, structure, kind, tau)
+    jets = _col_jets(params, structure, kind, tau) if jets is None else jets
     (bp, C), _, _ = jets
     p = bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)  # (N, K)
     o0, o1, o2 = others_jet(op, T * s + off, 2)  # (N, Mo, K)
@@ -386,6 +396,51 @@ def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, 
     return v, g, H, gc
 
 
+def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g: bool):
+    """(value, gradient, Hessian, g_static) of the static rows' terms (barrier and AL
+    terms, :func:`jaxplan.nlp.terms.static_local`) for :func:`merit_derivs`.  Each
+    collision row's local term is F_k = T B_k(p) + A_k(p) (B the barrier without its T
+    factor, A the AL terms); their p derivatives come from autodiff per row (small: N
+    variables), the rest from :func:`_chain`.  g_static (n_col, R): the constraints where
+    ``with_g`` and the mode has them, else ones."""
+    params_s = params
+    _, _, w, on = collision_rows(params, structure)
+    (bp, C), _, _ = jets
+    p = (bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)).T  # (K, N)
+    st = params.static
+    wt = params.weights
+    r = params.radius
+    lam = mult.static if mult is not None else None
+    cons = structure.collision_constraints and lam is not None
+
+    def bar(pk, wk):
+        if not structure.static_barrier:
+            return jnp.zeros((), p.dtype)
+        return wt.q_obs * wk * jnp.sum(jnp.where(st.mask, jnp.exp(-wt.k_p * static_gap(
+            pk, params_s)), 0.0))
+
+    def alt(pk, lk, ok):
+        if not cons:
+            return jnp.zeros((), p.dtype)
+        g = 2.0 * r * static_gap(pk, params_s)
+        return jnp.sum(jnp.where(st.mask & ok, al_term(g, lk, mu), 0.0))
+
+    bv, bg, bH = jax.vmap(lambda pk, wk: _value_grad_hessian(bar, pk, wk))(p, w)
+    if cons:
+        av, ag, aH = jax.vmap(lambda pk, lk, ok: _value_grad_hessian(alt, pk, lk, ok))(p, lam, on)
+    else:
+        av, ag, aH = jnp.zeros_like(bv), jnp.zeros_like(bg), jnp.zeros_like(bH)
+    v = jnp.sum(T * bv + av)
+    G = (T * bg + ag).T  # (N, K)
+    Hgg = jnp.transpose(T * bH + aH, (1, 2, 0))  # (N, N, K)
+    g, H = _chain(z, T, jets, G[None], Hgg[None], bg.T[None], bv, jnp.zeros_like(bv))
+    gs = jnp.ones((structure.n_col, structure.n_static), z.dtype)
+    if with_g and structure.collision_constraints:
+        gap = jax.vmap(lambda pk: static_gap(pk, params))(p)
+        gs = jnp.where(st.mask[None, :] & on[:, None], 2.0 * r * gap, 1.0)
+    return v, g, H, gs
+
+
 def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool = False,
                  others: OthersPrep | None = None):
     """(value, gradient (n,), Hessian (n, n)) of the augmented Lagrangian at x; with
@@ -409,9 +464,14 @@ def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool
     if structure.paper:
         v, g, H = _value_grad_hessian(lambda xx: paper_collision(xx, params, structure, kind), x)
         tv, tg, tH = tv + v, tg + g, tH + H
+    gs = jnp.ones((structure.n_col, structure.n_static), x.dtype)
+    jets = _col_jets(params, structure, kind, tau) if needs_col_features(structure) else None
+    if structure.static_terms:
+        v, g, H, gs = _static_derivs(z, T, jets, params, structure, mult, mu, with_g)
+        tv, tg, tH = tv + v, tg + g, tH + H
     if has_sampled_collision(structure):
         v, g, H, gc = _collision_derivs(x, z, T, tau, params, structure, kind, mult, mu, with_g,
-                                        others)
+                                        others, jets)
         tv, tg, tH = tv + v, tg + g, tH + H
     if structure.hard_limits:
         jh = _lim_jets(params, structure, "lim", tau)
@@ -422,5 +482,5 @@ def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool
             tm2 = jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2
             gh = (1.0 - jnp.sum(Yh * Yh, axis=1) / tm2[:, None]).T
     if with_g:
-        return tv, tg, tH, Multipliers(gc, gh)
+        return tv, tg, tH, Multipliers(gc, gh, gs)
     return tv, tg, tH

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from jaxplan.nlp.basis import basis, boundary_vector, falling, kind_constants, unpack
 from jaxplan.nlp.types import DIST_EPS2, SEXP_KNEE, Limits, Multipliers, NLPParams, NLPStructure
 from jaxplan.trajectory import Trajectory
+from jaxplan.world import signed_distance
 
 
 # ---------------------------------------------------------------------- features
@@ -158,6 +159,39 @@ def _collision_local(y, o, w, lam, params, structure, mu, on=True):
     return val
 
 
+def static_gap(p, params):
+    """Clearance sd(p) - r (m) of the robot at p (N,) to each static row (R,)
+    (:func:`jaxplan.world.signed_distance`; masked rows included)."""
+    st = params.static
+    return signed_distance(st.kind, st.center, st.half, st.radius, p, xp=jnp) - params.radius
+
+
+def static_local(y, w, lam, on, params, structure, mu):
+    """Static-row terms at one collision row: y = (p (N), T); barrier q_obs T w
+    sum exp(-k_p (sd - r)); AL terms of g = 2 r (sd - r) >= 0 (m^2, as d^2 - rho^2 is near
+    its boundary) where the row's constraint is ``on``."""
+    N = structure.n_dim
+    p, T = y[:N], y[-1]
+    gap = static_gap(p, params)
+    mask = params.static.mask
+    wt = params.weights
+    val = 0.0
+    if structure.static_barrier:
+        val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, jnp.exp(-wt.k_p * gap), 0.0))
+    if structure.collision_constraints and lam is not None:
+        g = 2.0 * params.radius * gap
+        val = val + jnp.sum(jnp.where(mask & on, al_term(g, lam, mu), 0.0))
+    return val
+
+
+def static_constraints(yc, on, params, structure):
+    """g (n_col, R) of the static rows at the collision rows' positions yc (n_col, >= N):
+    2 r (sd - r), +1 where masked or the row is off."""
+    N = structure.n_dim
+    gap = jax.vmap(lambda y: static_gap(y[:N], params))(yc)
+    return jnp.where(params.static.mask[None, :] & on[:, None], 2.0 * params.radius * gap, 1.0)
+
+
 def _limits_local(y, w, params, structure):
     """Soft limits at one quadrature node: y = (v, a, j, T)."""
     N = structure.n_dim
@@ -198,6 +232,15 @@ def has_sampled_collision(structure):
     return structure.barrier or structure.collision_constraints
 
 
+def needs_col_features(structure):
+    """Whether the own positions at the collision rows are needed (robots or statics)."""
+    return has_sampled_collision(structure) or structure.static_terms
+
+
+def _static_shape(x, structure):
+    return jnp.ones((structure.n_col, structure.n_static), x.dtype)
+
+
 def paper_collision(x, params, structure, kind):
     """The "paper" collision term integrated exactly (module doc): q_obs sum_j
     (exp(-k_p (d_j(0) - rho_j)) - exp(-k_p (d_j(T) - rho_j))) / k_p, d_j(t) = |x(t) -
@@ -228,13 +271,22 @@ def evaluate_terms(x, params, structure, kind, mult: Multipliers | None, mu, wit
     val = val + jnp.sum(jax.vmap(lambda y, w: _limits_local(y, w, params, structure))(
         yq, jnp.asarray(b.quad_w)))
     gc = jnp.ones((structure.n_col, Mo), x.dtype)
+    gs = _static_shape(x, structure)
     if structure.paper:
         val = val + paper_collision(x, params, structure, kind)
+    if needs_col_features(structure):
+        yc = _col_features(x, params, structure, kind, (0,))
+        s, off, w, on = collision_rows(params, structure)
+    if structure.static_terms:
+        lam_s = mult.static if mult is not None else None
+        val = val + jnp.sum(jax.vmap(
+            lambda y, wk, lk, ok: static_local(y, wk, lk, ok, params, structure, mu),
+            in_axes=(0, 0, None if lam_s is None else 0, 0))(yc, w, lam_s, on))
+        if with_g and structure.collision_constraints:
+            gs = static_constraints(yc, on, params, structure)
     if has_sampled_collision(structure):
         N = structure.n_dim
-        yc = _col_features(x, params, structure, kind, (0,))
         T = yc[0, -1]
-        s, off, w, on = collision_rows(params, structure)
         o0 = others_derivs(params.others, params.other_mask, T * s + off, 0)[0]
         lam = mult.collision if mult is not None else None
 
@@ -256,7 +308,7 @@ def evaluate_terms(x, params, structure, kind, mult: Multipliers | None, mu, wit
                 yh, mult.limits))
         gh = jax.vmap(lambda y: _hard_g(y, params, structure))(yh)
     if with_g:
-        return val, Multipliers(gc, gh)
+        return val, Multipliers(gc, gh, gs)
     return val
 
 
@@ -267,11 +319,14 @@ def objective(x, params: NLPParams, structure: NLPStructure):
 
 
 def constraints(x, params: NLPParams, structure: NLPStructure):
-    """Inequality constraints g(x) >= 0 as (collision (Kc, Mo), limits (Kh, 3)).
+    """Inequality constraints g(x) >= 0 as (collision (Kc, Mo), limits (Kh, 3), static
+    (Kc, R)).
 
-    Collision: d^2 - rho^2 (m^2) at the collision samples (masked pairs: +1; zeros of
+    Collision: d^2 - rho^2 (m^2) at the collision samples (masked pairs: +1; ones of
     shape (Kc, Mo) when the mode has no collision constraints).  Limits: 1 - |x^(k)|^2 /
-    tau_k^2 at the hard-limit samples (+1 when ``hard_limits`` is off).
+    tau_k^2 at the hard-limit samples (+1 when ``hard_limits`` is off).  Static:
+    2 r (sd - r) (m^2) of the obstacles and workspace faces at the same rows (+1 where
+    masked or off, and without collision constraints).
     """
     kind = kind_constants(params.rest, structure)
     return _constraints(x, params, structure, kind)
@@ -281,10 +336,13 @@ def _constraints(x, params, structure, kind):
     b = basis(structure)
     Mo = params.other_mask.shape[-1]
     Kc, Kh = structure.n_col, len(b.lim_s)
+    gs = _static_shape(x, structure)
     if structure.collision_constraints:
         yc = _col_features(x, params, structure, kind, (0,))
         T = yc[0, -1]
         s, off, _, on = collision_rows(params, structure)
+        if structure.static_terms:
+            gs = static_constraints(yc, on, params, structure)
         o = others_derivs(params.others, params.other_mask, T * s + off, 0)[0]
         dx = yc[:, None, : structure.n_dim] - o
         rho = params.radius + params.other_radius
@@ -297,7 +355,7 @@ def _constraints(x, params, structure, kind):
         gh = jax.vmap(lambda y: _hard_g(y, params, structure))(yh)
     else:
         gh = jnp.ones((Kh, 3), x.dtype)
-    return Multipliers(gc, gh)
+    return Multipliers(gc, gh, gs)
 
 
 def merit(x, params, structure, kind, mult: Multipliers, mu):

@@ -14,6 +14,7 @@ from typing import NamedTuple
 import jax
 
 from jaxplan.trajectory import Trajectory
+from jaxplan.world import StaticRows
 
 # the collision treatments of the NLP ("none": no collision terms) and those a planner
 # config may choose
@@ -62,6 +63,10 @@ class NLPStructure:
             v_max). Only in the modes with collision constraints; no barrier there; inactive on
             rest lanes (their coast is a hold, checked by the last samples).  0 = off
             (the paper's NLP).
+        n_static: static rows R (obstacles and workspace faces, :mod:`jaxplan.world`),
+            padded to a fixed count; their terms sit at the same collision rows as the
+            robots' (barrier in the barrier modes and "paper", AL constraints
+            2 r (sd(p) - r) >= 0 in the constraint modes, coast rows included); 0 = none.
     """
 
     n_dim: int = 3
@@ -73,6 +78,7 @@ class NLPStructure:
     hard_limits: bool = False
     n_limit_samples: int = 16
     n_coast_samples: int = 0
+    n_static: int = 0
 
     def __post_init__(self):
         if self.collision not in COLLISION_MODES:
@@ -85,6 +91,8 @@ class NLPStructure:
             raise ValueError("n_collision_samples must be a positive multiple of 4")
         if self.n_coast_samples < 0:
             raise ValueError("n_coast_samples must be >= 0")
+        if self.n_static < 0:
+            raise ValueError("n_static must be >= 0")
 
     @property
     def barrier(self) -> bool:
@@ -100,6 +108,18 @@ class NLPStructure:
     def collision_constraints(self) -> bool:
         """Whether the NLP has hard collision constraints (augmented Lagrangian)."""
         return self.collision in ("constraint", "barrier+constraint")
+
+    @property
+    def static_terms(self) -> bool:
+        """Whether the NLP has terms of static rows (obstacles, workspace faces)."""
+        return self.n_static > 0 and self.collision != "none"
+
+    @property
+    def static_barrier(self) -> bool:
+        """Whether the static rows have the sampled barrier (every mode with a barrier,
+        and "paper": its exp(-k_p (d - rho)) form, sampled, as a static obstacle has no
+        closed-form integral)."""
+        return self.static_terms and (self.barrier or self.paper)
 
     @property
     def n_coast(self) -> int:
@@ -132,6 +152,8 @@ class NLPParams(NamedTuple):
         others: Trajectory with batch (Mo,): the other robots' predictions (any S, D).
         other_radius: (Mo,) m.   other_mask: (Mo,) bool, False = ignore.
         radius: () m.   weights: Weights.   limits: Limits.   t_min: () s (> 0).
+        static: :class:`jaxplan.world.StaticRows` with R = ``structure.n_static`` rows
+            (obstacles and workspace faces), or None (no static rows).
     """
 
     p0: jax.Array
@@ -148,10 +170,13 @@ class NLPParams(NamedTuple):
     weights: Weights
     limits: Limits
     t_min: jax.Array
+    static: StaticRows | None = None
 
 
 class Multipliers(NamedTuple):
-    """Augmented-Lagrangian multipliers (>= 0) of the inequality constraints."""
+    """Augmented-Lagrangian multipliers (>= 0) of the inequality constraints (the same
+    shapes hold the constraints g >= 0 themselves)."""
 
     collision: jax.Array  # (Kc + n_coast, Mo)
     limits: jax.Array  # (Kh, 3)
+    static: jax.Array | None = None  # (Kc + n_coast, R) obstacles and workspace faces

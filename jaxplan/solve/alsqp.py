@@ -53,6 +53,7 @@ Status codes (``Solution.status``, int32):
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -120,7 +121,7 @@ def next_trial(a, g_x: Multipliers, g_a: Multipliers, thr: Multipliers, overshoo
     frac = jax.tree.map(
         lambda gx, ga, t: jnp.where((gx >= t) & (ga < t), (gx - t) / jnp.maximum(gx - ga, 1e-300),
                                     1.0), g_x, g_a, thr)
-    r = jnp.minimum(jnp.min(frac.collision, initial=1.0), jnp.min(frac.limits, initial=1.0))
+    r = functools.reduce(jnp.minimum, [jnp.min(f, initial=1.0) for f in jax.tree.leaves(frac)])
     return jnp.where(r < 1.0, jnp.clip(overshoot * r, 1e-3, 0.5), 0.5) * a
 
 
@@ -145,6 +146,8 @@ def init_lane(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
     x0 = x0.at[-1].set(jnp.maximum(x0[-1], tau_min))
     kind = nlp.kind_constants(params.rest, structure)
     mult0 = zero_multipliers(params, structure) if multipliers is None else multipliers
+    if mult0.static is None:  # given without static rows' multipliers: zeros
+        mult0 = mult0._replace(static=zero_multipliers(params, structure).static)
     mult0 = jax.tree.map(lambda a: jnp.where(jnp.isfinite(a), jnp.maximum(a, 0.0), 0.0), mult0)
     mu0 = jnp.asarray(s.mu0 if penalty is None else penalty, jnp.float64)
     mu0 = jnp.where(jnp.isfinite(mu0) & (mu0 > 0), mu0, s.mu0)
@@ -177,6 +180,10 @@ def _objective_from_merit(f, g: Multipliers, mult: Multipliers, mu, params: NLPP
         al = al + jnp.sum(jnp.where(use, nlp.al_term(g.collision, mult.collision, mu), 0.0))
     if structure.hard_limits:
         al = al + jnp.sum(nlp.al_term(g.limits, mult.limits, mu))
+    if structure.static_terms and structure.collision_constraints:
+        _, _, _, on = nlp.collision_rows(params, structure)
+        use = params.static.mask[None, :] & on[:, None]
+        al = al + jnp.sum(jnp.where(use, nlp.al_term(g.static, mult.static, mu), 0.0))
     return f - al
 
 
@@ -271,8 +278,9 @@ def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> St
     theta = -grad_proj @ d
     scale = 1.0 + jnp.abs(fy)
     lam_t = jax.tree.map(lambda l, gg: jnp.maximum(0.0, l - mu * gg), mult, g)
-    compl = jnp.maximum(jnp.max(lam_t.collision * jnp.abs(g.collision), initial=0.0),
-                        jnp.max(lam_t.limits * jnp.abs(g.limits), initial=0.0))
+    compl = functools.reduce(jnp.maximum, [jnp.max(lt * jnp.abs(gg), initial=0.0) for lt, gg in
+                                           zip(jax.tree.leaves(lam_t), jax.tree.leaves(g),
+                                               strict=True)])
     conv = (theta <= s.tol_stationarity * scale) & (max_violation(g) <= s.tol_feasibility) & (
         compl <= s.tol_complementarity * scale)
     cap = jnp.minimum(1.0, s.max_step_tau / jnp.maximum(jnp.abs(d[-1]), 1e-300))

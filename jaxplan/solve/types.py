@@ -5,6 +5,7 @@ and the sanitizing of a problem's parameters (docs/SOLVER.md).
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -68,14 +69,15 @@ class Solution(NamedTuple):
 
 def max_violation(g: Multipliers):
     """The largest violation max(0, -g) of the inequality constraints g >= 0."""
-    return jnp.maximum(jnp.max(-g.collision, initial=0.0), jnp.max(-g.limits, initial=0.0))
+    return functools.reduce(jnp.maximum, [jnp.max(-a, initial=0.0) for a in jax.tree.leaves(g)])
 
 
 def zero_multipliers(params: NLPParams, structure: NLPStructure) -> Multipliers:
     """Multipliers of zeros, shaped for one problem's constraints."""
     b = nlp.basis(structure)
     Mo = params.other_mask.shape[-1]
-    return Multipliers(jnp.zeros((structure.n_col, Mo)), jnp.zeros((len(b.lim_s), 3)))
+    return Multipliers(jnp.zeros((structure.n_col, Mo)), jnp.zeros((len(b.lim_s), 3)),
+                       jnp.zeros((structure.n_col, structure.n_static)))
 
 
 def sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
@@ -86,5 +88,12 @@ def sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
     scal = jax.tree.leaves((params.weights, params.limits, params.t_min, params.radius))
     ok = ok & jnp.all(jnp.stack([jnp.isfinite(a) for a in scal]))
     fz = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)
-    return params._replace(**{k: fz(getattr(params, k)) for k in
-                              ("p0", "v0", "a0", "goal_p", "goal_v", "goal_a", "t_min")}), ok
+    params = params._replace(**{k: fz(getattr(params, k)) for k in
+                                ("p0", "v0", "a0", "goal_p", "goal_v", "goal_a", "t_min")})
+    if params.static is not None:  # a non-finite static row is ignored
+        st = params.static
+        fin = (jnp.all(jnp.isfinite(st.center), -1) & jnp.all(jnp.isfinite(st.half), -1)
+               & jnp.isfinite(st.radius))
+        params = params._replace(static=st._replace(
+            mask=st.mask & fin, center=fz(st.center), half=fz(st.half), radius=fz(st.radius)))
+    return params, ok
