@@ -1,0 +1,253 @@
+"""The world (jaxplan/world.py): signed distances against dense surface samples, the NLP's
+static rows against autodiff, config errors, and a robot going round an obstacle."""
+
+import tomllib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxplan  # noqa: F401  (float64)
+from jaxplan import nlp, solve
+from jaxplan.config import ConfigError, build_scenario, config_to_toml, parse_config
+from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
+from jaxplan.testing import limits, random_problem, weights
+from jaxplan.trajectory import Trajectory
+from jaxplan.world import (
+    BOX,
+    CYLINDER,
+    SPHERE,
+    StaticRows,
+    World,
+    obstacle_arrays,
+    signed_distance,
+    static_rows,
+)
+
+
+# ---------------------------------------------------------------------- distances
+def _surface_points(kind, c, half, r, n=200_000, seed=0):
+    """Dense uniform-ish samples of an obstacle's surface (the reference)."""
+    rng = np.random.default_rng(seed)
+    N = len(c)
+    if kind == SPHERE or (kind == CYLINDER and N == 2):
+        u = rng.normal(size=(n, N))
+        return c + r * u / np.linalg.norm(u, axis=1, keepdims=True)
+    if kind == BOX:
+        p = rng.uniform(-1, 1, size=(n, N)) * half
+        ax = rng.integers(0, N, n)
+        p[np.arange(n), ax] = np.sign(rng.uniform(-1, 1, n)) * half[ax]
+        return c + p
+    # cylinder: side and caps by area
+    H = half[2]
+    side, cap = 2 * np.pi * r * 2 * H, np.pi * r * r
+    k = rng.uniform(size=n) * (side + 2 * cap)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    rad = np.where(k < side, r, r * np.sqrt(rng.uniform(size=n)))
+    z = np.where(k < side, rng.uniform(-H, H, n), np.where(k < side + cap, H, -H))
+    return c + np.stack([rad * np.cos(ang), rad * np.sin(ang), z], 1)
+
+
+def _inside(kind, c, half, r, p):
+    d = p - c
+    if kind == SPHERE or (kind == CYLINDER and len(c) == 2):
+        return np.linalg.norm(d, axis=-1) < r
+    if kind == BOX:
+        return np.all(np.abs(d) < half, axis=-1)
+    return (np.linalg.norm(d[:, :2], axis=-1) < r) & (np.abs(d[:, 2]) < half[2])
+
+
+@pytest.mark.parametrize("N", [2, 3])
+@pytest.mark.parametrize("kind", [SPHERE, BOX, CYLINDER])
+def test_signed_distance_matches_dense_surface_samples(kind, N):
+    rng = np.random.default_rng(kind + 10 * N)
+    c = rng.normal(size=N)
+    half = rng.uniform(0.3, 1.0, N)
+    r = rng.uniform(0.3, 1.0)
+    surf = _surface_points(kind, c, half, r)
+    p = c + rng.normal(size=(200, N)) * 1.2
+    sd = signed_distance(np.array([kind]), c[None], half[None], np.array([r]), p)[:, 0]
+    ref = np.concatenate([np.min(np.linalg.norm(q[:, None] - surf[None], axis=-1), axis=1)
+                          for q in np.split(p, 10)])
+    inside = _inside(kind, c, half, r, p)
+    assert 0 < inside.sum() < len(p)
+    # a sampled surface only ever lies farther than the nearest surface point: outside,
+    # sd <= the sampled distance; inside, -sd <= it; and within the sampling's spacing
+    # (~0.02 m on these bodies) of it; the smoothing moves sd down by at most 1e-6 m
+    np.testing.assert_array_less(sd[~inside], ref[~inside] + 1e-12)
+    np.testing.assert_array_less(-sd[inside], ref[inside] + 1e-6)
+    np.testing.assert_allclose(np.abs(sd), ref, atol=0.03)
+
+
+def test_workspace_faces_are_half_spaces():
+    w = World(np.array([-1.0, -np.inf, 0.0]), np.array([np.inf, 2.0, 3.0]),
+              np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    rows = static_rows(w, 6)
+    assert rows.mask.tolist() == [True] * 4 + [False] * 2
+    p = np.array([[0.5, 1.0, 1.0], [-2.0, 5.0, 4.0]])
+    sd = signed_distance(rows.kind, rows.center, rows.half, rows.radius, p)[:, :4]
+    # faces: x >= -1, z >= 0, y <= 2, z <= 3
+    np.testing.assert_allclose(sd, [[1.5, 1.0, 1.0, 2.0], [-1.0, 4.0, -3.0, -1.0]])
+
+
+# ---------------------------------------------------------------------- the NLP's rows
+def _world_near(p, rng, rows=10):
+    p0, pf = np.asarray(p.p0), np.asarray(p.goal_p)
+    obs = []
+    for kind in ("sphere", "box", "cylinder", "box", "sphere"):
+        c = p0 + (pf - p0) * rng.uniform(0.2, 0.8) + rng.normal(size=3) * 0.4
+        if kind == "sphere":
+            obs.append(dict(kind=kind, center=c, radius=rng.uniform(0.2, 0.6)))
+        elif kind == "box":
+            obs.append(dict(kind=kind, center=c, half_extents=rng.uniform(0.1, 0.5, 3)))
+        else:
+            obs.append(dict(kind=kind, center=c, radius=rng.uniform(0.2, 0.5),
+                            half_height=rng.uniform(0.3, 1.0)))
+    w = World(np.array([-10.0, -10.0, min(p0[2], pf[2]) - 0.5]), np.array([np.inf, 10.0, np.inf]),
+              *obstacle_arrays(obs, 3))
+    return StaticRows(*(jnp.asarray(a) for a in static_rows(w, rows)))
+
+
+@pytest.mark.parametrize("st,rest", [
+    (NLPStructure(collision="barrier+constraint", segments=2, n_coast_samples=6, n_static=10),
+     False),
+    (NLPStructure(collision="paper", segments=2, n_static=10), True),
+])
+def test_static_rows_structured_derivatives_match_autodiff(st, rest):
+    """Obstacles near the straight line, random multipliers: value, gradient, Hessian
+    and the constraints of merit_derivs equal autodiff of the reference terms, some of
+    the static constraints violated (their AL branch reached)."""
+    rng = np.random.default_rng(1)
+    p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
+    p = p._replace(static=_world_near(p, rng))
+    b = nlp.basis(st)
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))),
+                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))),
+                       jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))))
+    kc = nlp.kind_constants(p.rest, st)
+    x = np.zeros(st.n_x)
+    x[:-1] = rng.normal(size=st.n_x - 1) * 0.05
+    x[-1] = np.log(5.0)
+    x = jnp.asarray(x)
+    f = lambda xx: nlp.merit(xx, p, st, kc, mult, 30.0)
+
+    @jax.jit
+    def both(xx):
+        return (nlp.merit_derivs(xx, p, st, kc, mult, 30.0, with_g=True),
+                (f(xx), jax.grad(f)(xx), jax.hessian(f)(xx)), nlp.constraints(xx, p, st))
+
+    (v, g, H, gg), (vr, gr, Hr), c = both(x)
+    np.testing.assert_allclose(v, vr, rtol=1e-12)
+    np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
+    np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
+    np.testing.assert_allclose(gg.static, c.static, rtol=1e-12, atol=1e-12)
+    if st.collision_constraints:
+        assert int(jnp.sum(c.static < 0)) > 0  # the straight line goes through obstacles
+        # the constraint is 2 r (sd - r) at the sampled positions
+        traj = nlp.to_trajectory(x, p, st)
+        s, off, _, _ = nlp.collision_rows(p, st)
+        T = traj.duration
+        pos = np.asarray(traj.evaluate(T * s[:st.n_collision_samples]))
+        rows = p.static
+        sd = signed_distance(*(np.asarray(a) for a in rows[:4]), pos)
+        want = np.where(np.asarray(rows.mask), 2 * float(p.radius) * (sd - float(p.radius)), 1.0)
+        np.testing.assert_allclose(np.asarray(c.static)[:st.n_collision_samples], want,
+                                   atol=1e-9)
+
+
+def test_a_robot_goes_round_an_obstacle_on_its_straight_line():
+    """One robot, rest to rest, a cylinder centred on its straight line (and the floor):
+    the solve converges and its plan keeps clear of both by dense samples (to 1 cm: the
+    constraints are sampled), where the straight line would pass through the axis."""
+    st = NLPStructure(collision="barrier+constraint", segments=2, n_static=2)
+    N = 3
+    w = World.default(3).with_obstacles([dict(kind="cylinder", center=[3.0, 0.0, 1.5],
+                                              radius=0.4, half_height=1.5)])
+    rows = StaticRows(*(jnp.asarray(a) for a in static_rows(w)))
+    z = jnp.zeros(N)
+    others = Trajectory.hold(jnp.full((1, N), 100.0))
+    one = jnp.asarray(1.0)
+    P = NLPParams(jnp.asarray([0.0, 0.0, 1.0]), z, z, jnp.asarray([6.0, 0.0, 1.0]), z, z,
+                  jnp.asarray(True), others, jnp.ones((1,)), jnp.zeros((1,), bool),
+                  jnp.asarray(0.3), weights(), limits(), 0.1 * one, rows)
+
+    @jax.jit
+    def run(P):
+        return solve.solve(P, solve.initial_guess(P, st), st)
+
+    sol = jax.device_get(run(P))
+    assert int(sol.status) == solve.CONVERGED
+    t = np.linspace(0.0, float(sol.traj.duration), 4001)
+    pos = np.asarray(sol.traj.evaluate(jnp.asarray(t)))
+    sd = signed_distance(w.kind, w.center, w.half, w.radius, pos)[:, 0]
+    assert np.min(sd) - 0.3 > -0.01
+    assert np.min(pos[:, 2]) - 0.3 > -0.01
+    assert np.allclose(pos[-1], [6.0, 0.0, 1.0], atol=1e-6)
+
+
+# ---------------------------------------------------------------------- config
+BASE = """
+name = "w"
+[[robots]]
+vehicle = "firefly"
+start = [0, 0, 1]
+goal = [5, 0, 1]
+[workspace]
+max = [inf, inf, 3.0]
+[[obstacles]]
+kind = "cylinder"
+center = [2.5, 0, 1.5]
+radius = 0.3
+half_height = 1.5
+"""
+
+
+def _cfg(text):
+    return parse_config(tomllib.loads(text), source="w.toml")
+
+
+def test_world_config_round_trips_and_builds():
+    c = _cfg(BASE)
+    assert _cfg(config_to_toml(c)) == c
+    sc = build_scenario(c)
+    np.testing.assert_array_equal(sc.world.lo, [-np.inf, -np.inf, 0.0])
+    np.testing.assert_array_equal(sc.world.hi, [np.inf, np.inf, 3.0])
+    assert sc.world.obstacles() == [dict(kind="cylinder", center=[2.5, 0.0, 1.5], radius=0.3,
+                                         half_height=1.5)]
+    two = _cfg('[[robots]]\nvehicle = "firefly"\nstart = [0, 0]\ngoal = [5, 0]\n'
+               '[[obstacles]]\nkind = "cylinder"\ncenter = [2.5, 1]\nradius = 0.5\n')
+    w2 = build_scenario(two).world
+    assert w2.dim == 2 and not np.any(np.isfinite(w2.lo))  # 2-D: unbounded by default
+
+
+@pytest.mark.parametrize("edit,message", [
+    (("start = [0, 0, 1]", "start = [2.5, 0.2, 1]"),
+     "w.toml: robots[0].start: robots[0]: start [2.5, 0.2, 1] is inside obstacles[0] "
+     "(cylinder at [2.5, 0, 1.5])"),
+    (("goal = [5, 0, 1]", "goal = [5, 0, 2.9]"),
+     "w.toml: robots[0].goal: robots[0]: goal (waypoint 0) [5, 0, 2.9] is outside the "
+     "workspace"),
+    (("goal = [5, 0, 1]", "goal = [5, 0, 0.1]"),
+     "w.toml: robots[0].goal: robots[0]: goal (waypoint 0) z = 0.1 m is inside the ground"),
+    (("half_height = 1.5", ""),
+     "w.toml: obstacles[0].half_height: missing; a cylinder needs radius and half_height"),
+    (("half_height = 1.5", "half_height = 1.5\nhalf_extents = [1, 1, 1]"),
+     "w.toml: obstacles[0].half_extents: a cylinder takes no half_extents"),
+    (('kind = "cylinder"', 'kind = "cone"'),
+     "w.toml: obstacles[0].kind: unknown value 'cone'"),
+    (("radius = 0.3", "radius = -0.3"), "w.toml: obstacles[0].radius:"),
+    (("max = [inf, inf, 3.0]", "max = [inf, nan, 3.0]"),
+     "w.toml: workspace.max[1]: expected a number or +-inf, got nan"),
+    (("max = [inf, inf, 3.0]", "max = [1.0, 1.0]"),
+     "w.toml: workspace.max: expected 3 coordinates"),
+    (("max = [inf, inf, 3.0]", "min = [0, 0, 5]\nmax = [9, 9, 4]"),
+     "w.toml: workspace.max: max[2] = 4 must be above min[2] = 5"),
+    (("center = [2.5, 0, 1.5]", "center = [2.5, 0]"),
+     "w.toml: obstacles[0].center: expected 3 coordinates"),
+    (("radius = 0.3", "radius = 0.3\ncolour = 1"), "w.toml: obstacles[0].colour: unknown key"),
+])
+def test_world_config_errors_name_the_key(edit, message):
+    with pytest.raises(ConfigError) as e:
+        _cfg(BASE.replace(*edit))
+    assert str(e.value).startswith(message), str(e.value)
