@@ -12,12 +12,16 @@
                goal_speed_tolerance_mps
     [[robots]] vehicle, start, goal | waypoints, goal_velocity, end_state
     [scenario] kind = "paper:<name>" | "antipodal_sphere" | "random_box" | "grid_swap"
-               | "stacked", and the generator's keys (its parameter model in
-               jaxplan/scenarios/generators.py, e.g. RandomBoxParams)
+               | "stacked" | "pillars" | "wall_gap" | "low_ceiling" | "random_obstacles",
+               and the generator's keys (its parameter model in
+               jaxplan/scenarios/generators.py or worlds.py, e.g. RandomBoxParams)
     [sweep]    q_obs, q_lim (lists or {log_min, log_max, num}, base-10 exponents),
                seeds (list or {start, num}), scenarios (registry names)
     [faults]   enabled, message_loss, latency_s, noise_sigma_m, frozen_robot, frozen_at_s,
                frozen_mode (jaxplan/faults.py; off by default)
+    [workspace] min, max              (per axis, inf = unbounded; 3-D default: z >= 0)
+    [[obstacles]] kind = "sphere" | "box" | "cylinder", center, radius, half_extents,
+               half_height            (jaxplan/world.py)
 
 Robots: ``goal = [x, y, z]`` (one goal) or ``waypoints = [[x, y, z], ...]`` (several, in
 order; the fleet moves on when every robot reached waypoint w).  ``goal_velocity`` is

@@ -27,6 +27,16 @@ from jaxplan.scenarios.paper import (
     paper_ten_mixed_rest,
 )
 from jaxplan.scenarios.scenario import Scenario, ScenarioError
+from jaxplan.scenarios.worlds import (
+    LowCeilingParams,
+    PillarsParams,
+    RandomObstaclesParams,
+    WallGapParams,
+    low_ceiling,
+    pillars,
+    random_obstacles,
+    wall_gap,
+)
 
 # ----------------------------------------------------------------------------- registry
 
@@ -57,12 +67,18 @@ GENERATORS: dict[str, Callable[..., Scenario]] = {
     "random_box": random_box,
     "grid_swap": grid_swap,
     "stacked": stacked,
+    "pillars": pillars,
+    "wall_gap": wall_gap,
+    "low_ceiling": low_ceiling,
+    "random_obstacles": random_obstacles,
 }
 
 GENERATOR_PARAMS: dict[str, type[GeneratorParams]] = {
-    p.kind: p for p in (AntipodalSphereParams, RandomBoxParams, GridSwapParams, StackedParams)
+    p.kind: p for p in (AntipodalSphereParams, RandomBoxParams, GridSwapParams, StackedParams,
+                        PillarsParams, WallGapParams, LowCeilingParams, RandomObstaclesParams)
 }
-AnyGeneratorParams = AntipodalSphereParams | RandomBoxParams | GridSwapParams | StackedParams
+AnyGeneratorParams = (AntipodalSphereParams | RandomBoxParams | GridSwapParams | StackedParams
+                      | PillarsParams | WallGapParams | LowCeilingParams | RandomObstaclesParams)
 
 _MIXED = ("firefly", "neo11")
 
@@ -96,6 +112,16 @@ SCENARIOS: dict[str, ScenarioSpec] = {
     "stacked": ScenarioSpec(
         "stacked", "a vertical stack flies to a spread-out row (default 6)",
         functools.partial(stacked, count=6)),
+    "pillars": ScenarioSpec(
+        "pillars", "two groups cross a field of vertical cylinders (default 12 robots)",
+        pillars),
+    "wall_gap": ScenarioSpec(
+        "wall_gap", "two groups of 6 swap through a 1.5 m slot in a wall", wall_gap),
+    "low_ceiling": ScenarioSpec(
+        "low_ceiling", "10 robots swap across a 4 m circle under a 2.5 m ceiling", low_ceiling),
+    "random_obstacles": ScenarioSpec(
+        "random_obstacles", "random starts and goals among random obstacles "
+        "(default 12 robots, 15 obstacles)", random_obstacles),
 }
 
 

@@ -1,0 +1,294 @@
+"""Scenarios in worlds with obstacles (experiments/worlds/): ``pillars``, ``wall_gap``,
+``low_ceiling`` and the ``random_obstacles`` generator, each with its parameter model
+(its ``[scenario]`` keys), like the benchmark generators of
+jaxplan/scenarios/generators.py.  3-D, on the ground (z >= 0); deterministic for a seed.
+
+``pillars``
+    ``count`` robots (default 12) in two groups cross a field of vertical cylinders
+    (floor to ``height``): one group from x = -``half_length`` to +, the other back,
+    each robot at a seeded height and lateral place; pillars of ``pillar_radius`` on a
+    staggered grid ``pillar_spacing`` apart over x, y in [-3, 3] m, each moved by a
+    seeded offset of up to ``jitter`` m.
+``wall_gap``
+    two groups of ``count`` / 2 (default 6 + 6) swap sides through a ``gap`` m wide
+    (default 1.5 m) vertical slot, floor to ceiling, in a wall at x = 0 (0.2 m thick)
+    that spans the workspace y in [-``half_width``, ``half_width``], z in [0, ``height``]:
+    there is no way round.  Robots start on a 2 x (count / 4) grid in the y-z plane at
+    x = -/+ ``distance`` and end mirrored at the other side; seeded jitter.
+``low_ceiling``
+    ``count`` robots (default 10) on a horizontal circle of ``radius`` (4 m) fly to
+    the antipodal point under a ceiling at ``ceiling`` (2.5 m; floor at 0): starts at
+    z = ceiling / 2 with a seeded jitter of up to ``jitter`` m in height and angle.
+``random_obstacles``
+    ``count`` robots and ``obstacles`` static obstacles (seeded kinds: vertical
+    cylinders floor to ``height``, boxes on the floor, floating spheres) in a square
+    arena whose side makes their footprints cover ``density`` of its floor; starts
+    and goals drawn uniformly, ``min_spacing`` apart, clear of every obstacle by the
+    robot's radius plus ``clearance``, each goal at least half the arena's side from
+    its start.  The workspace is the arena (walls at its sides, a ceiling at
+    ``height``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import ClassVar
+
+import numpy as np
+from pydantic import ConfigDict
+from pydantic.dataclasses import dataclass as pydantic_dataclass
+
+from jaxplan.fields import (
+    Count,
+    EndState,
+    NonNegativeLength,
+    PositiveLength,
+    Tries,
+    VehicleNames,
+    integer,
+    number,
+)
+from jaxplan.scenarios.generators import (
+    GeneratorParams,
+    _check_count,
+    _check_end,
+    _check_pos,
+    check_seed,
+    default_spacing,
+)
+from jaxplan.scenarios.scenario import Scenario, ScenarioError, cycle_vehicles, make_scenario
+from jaxplan.vehicles import VEHICLES
+from jaxplan.world import World, point_problems
+
+_PARAMS_CONFIG = ConfigDict(extra="forbid")
+ObstacleCount = integer(ge=0, le=1000)
+ThreeD = integer(ge=3, le=3)  # the worlds are 3-D (a ground, heights)
+Fraction = number(gt=0.0, lt=1.0)
+
+
+def _world(lo, hi, obstacles) -> World:
+    return World(np.asarray(lo, float), np.asarray(hi, float), np.zeros(0, np.int32),
+                 np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)).with_obstacles(obstacles)
+
+
+def _jitter(rng, n, r) -> np.ndarray:
+    return rng.uniform(-r, r, size=(n, 3)) if r > 0 else np.zeros((n, 3))
+
+
+# ------------------------------------------------------------------------------ pillars
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class PillarsParams(GeneratorParams):
+    """``kind = "pillars"`` (:func:`pillars`)."""
+
+    kind: ClassVar[str] = "pillars"
+    count: Count = 12
+    dim: ThreeD = None
+    half_length: PositiveLength = 5.5
+    pillar_radius: PositiveLength = 0.25
+    pillar_spacing: PositiveLength = 2.2
+    jitter: NonNegativeLength = 0.2
+    height: PositiveLength = 4.0
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+
+def pillars(count: int = 12, seed: int = 0, *, half_length: float = 5.5,
+            pillar_radius: float = 0.25, pillar_spacing: float = 2.2, jitter: float = 0.2,
+            height: float = 4.0, vehicles: Sequence[str] = ("firefly",),
+            end_state: str = "free", validate: bool = True) -> Scenario:
+    """Two groups cross a field of pillars (module doc)."""
+    count = _check_count(count)
+    seed = check_seed(seed)
+    rest = _check_end(end_state)
+    rng = np.random.default_rng(seed)
+    names = cycle_vehicles(vehicles, count)
+    obstacles = []
+    xs = np.arange(-3.0, 3.0 + 1e-9, pillar_spacing * math.sqrt(3) / 2)
+    for i, x in enumerate(xs):
+        off = 0.5 * pillar_spacing * (i % 2)
+        for y in np.arange(-3.0 - off, 3.0 + 1e-9, pillar_spacing) + off:
+            c = np.array([x, y, height / 2]) + _jitter(rng, 1, jitter)[0] * [1, 1, 0]
+            obstacles.append(dict(kind="cylinder", center=c, radius=pillar_radius,
+                                  half_height=height / 2))
+    side = np.where(np.arange(count) % 2 == 0, -1.0, 1.0)
+    k = np.arange(count) // 2
+    per = math.ceil(count / 2)
+    lateral = (k - (per - 1) / 2) * (6.0 / max(per, 1))
+    z = 1.0 + (k % 3) * 0.8
+    start = np.stack([side * half_length, lateral, z], 1) + _jitter(rng, count, 0.15)
+    goal = np.stack([-side * half_length, -lateral, z], 1) + _jitter(rng, count, 0.15)
+    world = _world([-np.inf, -np.inf, 0.0], [np.inf, np.inf, height], obstacles)
+    return make_scenario("pillars", names, start, goal, rest, world=world, validate=validate)
+
+
+# ------------------------------------------------------------------------------ wall_gap
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class WallGapParams(GeneratorParams):
+    """``kind = "wall_gap"`` (:func:`wall_gap`)."""
+
+    kind: ClassVar[str] = "wall_gap"
+    count: Count = 12
+    dim: ThreeD = None
+    gap: PositiveLength = 1.5
+    distance: PositiveLength = 4.0
+    half_width: PositiveLength = 5.0
+    height: PositiveLength = 3.5
+    jitter: NonNegativeLength = 0.1
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+
+def wall_gap(count: int = 12, seed: int = 0, *, gap: float = 1.5, distance: float = 4.0,
+             half_width: float = 5.0, height: float = 3.5, jitter: float = 0.1,
+             vehicles: Sequence[str] = ("firefly",), end_state: str = "free",
+             validate: bool = True) -> Scenario:
+    """Two groups swap through a gap in a wall (module doc)."""
+    count = _check_count(count)
+    if count % 2:
+        raise ScenarioError(f"count: must be even (two equal groups), got {count}", key="count")
+    seed = check_seed(seed)
+    rest = _check_end(end_state)
+    gap = _check_pos(gap, "gap")
+    if gap >= 2 * half_width:
+        raise ScenarioError(f"gap: must be narrower than the wall ({2 * half_width:g} m)",
+                            key="gap")
+    rng = np.random.default_rng(seed)
+    names = cycle_vehicles(vehicles, count)
+    t = 0.1  # half the wall's thickness
+    wing = (half_width - gap / 2) / 2
+    obstacles = [dict(kind="box", center=[0.0, s * (gap / 2 + wing), height / 2],
+                      half_extents=[t, wing, height / 2]) for s in (-1.0, 1.0)]
+    g = count // 2
+    cols = math.ceil(g / 2)
+    j = np.arange(g)
+    y = (j % cols - (cols - 1) / 2) * min(1.2, 2 * (half_width - 0.6) / max(cols, 1))
+    z = np.where(j < cols, 1.0, 2.2) * height / 3.5
+    a = np.stack([np.full(g, -distance), y, z], 1)
+    b = a * [-1, 1, 1]
+    start = np.concatenate([a, b]) + _jitter(rng, count, jitter)
+    goal = np.concatenate([b * [1, -1, 1], a * [1, -1, 1]]) + _jitter(rng, count, jitter)
+    world = _world([-np.inf, -half_width, 0.0], [np.inf, half_width, height], obstacles)
+    return make_scenario("wall_gap", names, start, goal, rest, world=world, validate=validate)
+
+
+# ---------------------------------------------------------------------------- low_ceiling
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class LowCeilingParams(GeneratorParams):
+    """``kind = "low_ceiling"`` (:func:`low_ceiling`)."""
+
+    kind: ClassVar[str] = "low_ceiling"
+    count: Count = 10
+    dim: ThreeD = None
+    radius: PositiveLength = 4.0
+    ceiling: PositiveLength = 2.5
+    jitter: NonNegativeLength = 0.1
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+
+def low_ceiling(count: int = 10, seed: int = 0, *, radius: float = 4.0, ceiling: float = 2.5,
+                jitter: float = 0.1, vehicles: Sequence[str] = ("firefly",),
+                end_state: str = "free", validate: bool = True) -> Scenario:
+    """An antipodal circle under a low ceiling (module doc)."""
+    count = _check_count(count)
+    seed = check_seed(seed)
+    rest = _check_end(end_state)
+    radius = _check_pos(radius, "radius")
+    ceiling = _check_pos(ceiling, "ceiling")
+    rng = np.random.default_rng(seed)
+    names = cycle_vehicles(vehicles, count)
+    ang = 2 * math.pi * np.arange(count) / count + rng.uniform(-jitter, jitter, count) / radius
+    unit = np.stack([np.cos(ang), np.sin(ang), np.zeros(count)], 1)
+    c = np.array([0.0, 0.0, ceiling / 2])
+    dz = rng.uniform(-jitter, jitter, (count, 1)) * [0, 0, 1]
+    start = c + radius * unit + dz
+    goal = c - radius * unit + rng.uniform(-jitter, jitter, (count, 1)) * [0, 0, 1]
+    world = _world([-np.inf, -np.inf, 0.0], [np.inf, np.inf, ceiling], [])
+    return make_scenario("low_ceiling", names, start, goal, rest, world=world, validate=validate)
+
+
+# ---------------------------------------------------------------------- random_obstacles
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class RandomObstaclesParams(GeneratorParams):
+    """``kind = "random_obstacles"`` (:func:`random_obstacles`)."""
+
+    kind: ClassVar[str] = "random_obstacles"
+    count: Count = 12
+    dim: ThreeD = None
+    obstacles: ObstacleCount = 15
+    density: Fraction = 0.08
+    height: PositiveLength = 3.5
+    min_spacing: PositiveLength = None
+    clearance: NonNegativeLength = 0.2
+    max_tries: Tries = 10000
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+    def resolved(self) -> RandomObstaclesParams:
+        import dataclasses
+
+        return dataclasses.replace(self, min_spacing=self.min_spacing or round(
+            default_spacing(self.vehicles), 6))
+
+
+def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
+                     density: float = 0.08, height: float = 3.5,
+                     min_spacing: float | None = None, clearance: float = 0.2,
+                     max_tries: int = 10000, vehicles: Sequence[str] = ("firefly",),
+                     end_state: str = "free", validate: bool = True) -> Scenario:
+    """Random robots among random obstacles (module doc)."""
+    count = _check_count(count)
+    seed = check_seed(seed)
+    rest = _check_end(end_state)
+    if not 0.0 < density < 1.0:
+        raise ScenarioError(f"density: must lie in (0, 1), got {density}", key="density")
+    rng = np.random.default_rng(seed)
+    names = cycle_vehicles(vehicles, count)
+    spacing = default_spacing(names) if min_spacing is None else _check_pos(
+        min_spacing, "min_spacing")
+    kinds = rng.choice(["cylinder", "box", "sphere"], size=obstacles, p=[0.5, 0.3, 0.2])
+    sizes = rng.uniform(0.25, 0.6, size=(obstacles, 3))
+    foot = np.where(kinds == "box", 4 * sizes[:, 0] * sizes[:, 1], math.pi * sizes[:, 0] ** 2)
+    # the arena: obstacles' footprints cover `density` of its floor (and room for robots)
+    side = max(math.sqrt(foot.sum() / density) if obstacles else 0.0,
+               2.0 * spacing * math.ceil(math.sqrt(count)) + 2.0)
+    half = side / 2
+    obs = []
+    for kd, s in zip(kinds, sizes, strict=True):
+        xy = rng.uniform(-half + 0.5, half - 0.5, 2)
+        if kd == "cylinder":
+            obs.append(dict(kind="cylinder", center=[*xy, height / 2], radius=s[0],
+                            half_height=height / 2))
+        elif kd == "box":
+            hz = rng.uniform(0.5, height / 2)
+            obs.append(dict(kind="box", center=[*xy, hz], half_extents=[s[0], s[1], hz]))
+        else:
+            obs.append(dict(kind="sphere", center=[*xy, rng.uniform(1.0, height - 1.0)],
+                            radius=s[0]))
+    world = _world([-half, -half, 0.0], [half, half, height], obs)
+    rmax = max(VEHICLES[v].radius for v in set(names))
+    lo = np.array([-half, -half, 0.0]) + rmax + clearance
+    hi = np.array([half, half, height]) - rmax - clearance
+
+    def draw(placed, avoid_near=None):
+        for _ in range(max_tries):
+            p = rng.uniform(lo, hi)
+            if point_problems(world, p, rmax + clearance):
+                continue
+            if placed and np.min(np.linalg.norm(np.array(placed) - p, axis=1)) < spacing:
+                continue
+            if avoid_near is not None and np.linalg.norm(p - avoid_near) < half:
+                continue
+            return p
+        raise ScenarioError(f"random_obstacles could not place robot {len(placed) + 1} of "
+                            f"{count} after {max_tries} tries; lower count, obstacles or "
+                            f"density", key="max_tries")
+
+    start, goal = [], []
+    for _ in range(count):
+        start.append(draw(start))
+    for i in range(count):
+        goal.append(draw(goal, start[i]))
+    return make_scenario("random_obstacles", names, np.array(start), np.array(goal), rest,
+                         world=world, validate=validate)
