@@ -40,6 +40,7 @@ studies: $(STAMP)
 	$(PY) experiments/studies.py paper --out sweeps/studies
 	$(PY) experiments/studies.py collision --out sweeps/studies
 	$(PY) experiments/studies.py faults --out sweeps/studies
+	$(PY) experiments/studies.py worlds --out sweeps/studies
 
 bench: $(STAMP)
 	$(VENV)/bin/jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md

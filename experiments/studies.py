@@ -3,8 +3,9 @@
     python experiments/studies.py paper     [--out DIR] [--backends B ...] [--only NAME ...]
     python experiments/studies.py collision [--seeds N] [--out DIR] [--batch B] [--fleets F ...]
     python experiments/studies.py faults    [--seeds N] [--out DIR] [--batch B] [--fleets F ...]
+    python experiments/studies.py worlds    [--seeds N] [--out DIR] [--batch B] [--only W ...]
     python experiments/studies.py results   [--out DIR]        (rebuild the page, run nothing)
-    make studies                            (paper, collision, faults into sweeps/studies/)
+    make studies                            (paper, collision, faults, worlds into sweeps/studies/)
 
 ``paper``: the paper's four scenarios (experiments/paper/*.toml), each under the ideal
 and the mjx backend, default settings, seed 0, one `jaxplan run ... --quiet
@@ -19,6 +20,11 @@ and random_box_20.toml), everything else at its default.
 planner settings: 20% message loss; 300 ms latency; sigma = 2 cm noise on the states the
 robots receive; robot 0 freezing (silent) at t = 2 s.  "Success" excepts the frozen robot
 (it cannot reach its goal); a collision with it still counts.
+
+``worlds``: the world scenarios (experiments/worlds/*.toml: pillars, wall_gap,
+low_ceiling, random_obstacles with 12 robots and 15 obstacles) at the default planner
+settings: ``--seeds`` seeds each under the ideal backend (a sweep per world), and seed 0
+under both backends through `jaxplan run` (the replan times, and the mjx contacts).
 
 Each (study, setting, fleet) cell of ``collision`` and ``faults`` is one `jaxplan sweep`
 directory under ``--out``, so an interrupted study resumes where it stopped.  Batches of
@@ -66,11 +72,12 @@ FAULTS = {
     "one frozen robot": {"enabled": True, "frozen_robot": 0, "frozen_at_s": 2.0,
                          "frozen_mode": "silent"},
 }
-STUDIES = ("paper", "collision", "faults")
+WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles")
+STUDIES = ("paper", "collision", "faults", "worlds")
 
 # The page: one section per study, in this order.
 TITLES = {"paper": "The paper's four scenarios", "collision": "Collision modes",
-          "faults": "Faults"}
+          "faults": "Faults", "worlds": "Worlds with obstacles"}
 INTRO = """\
 # Results
 
@@ -94,6 +101,11 @@ DEFAULT_NOTES = {
                  "and goals in a box (30 s runs).",
     "faults": "Each fault of `[faults]` alone, default settings. Success excepts the frozen "
               "robot; a collision with it still counts.",
+    "worlds": "Success also requires no robot body inside an obstacle or outside the "
+              "workspace (exact from the executed pieces under ideal; every physics step "
+              "under mjx). Clearance: distance from a robot's centre to the obstacle's "
+              "surface (or a workspace face) minus its radius, min over robots, time and "
+              "runs. The worlds: jaxplan/scenarios/worlds.py.",
 }
 
 
@@ -156,7 +168,13 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
     rows, _ = read_sweep_csv(res.csv)
     num = lambda k: [float(r[k]) for r in rows if r[k] not in ("", "nan")]  # noqa: E731
     ms = num("makespan_s")
+    total = lambda k: int(sum(num(k))) if rows and k in rows[0] else None  # noqa: E731
+    low = lambda k: min(num(k), default=None) if rows and k in rows[0] else None  # noqa: E731
     return {
+        "obstacle_collisions_total": total("obstacle_collisions"),
+        "workspace_violations_total": total("workspace_violations"),
+        "min_obstacle_clearance_m": low("min_obstacle_clearance_m"),
+        "min_workspace_clearance_m": low("min_workspace_clearance_m"),
         "runs": len(rows),
         "success_rate": statistics.fmean(num("success")),
         "collisions_total": int(sum(num("collisions"))),
@@ -253,6 +271,74 @@ def _paper_study(a) -> tuple[str, dict]:
 
 
 # ---------------------------------------------------------------------------------------
+# worlds: a seed sweep per world (ideal), and seed 0 through `jaxplan run` on both backends
+# ---------------------------------------------------------------------------------------
+
+
+def _run_once(config: Path, out: Path, backend: str, t0: float) -> dict:
+    mpath = out / "metrics.json"
+    if not mpath.exists():  # metrics.json marks a complete run directory
+        cmd = [sys.executable, "-m", "jaxplan", "run", str(config), "--out", str(out),
+               "--backend", backend, "--quiet", "--no-figures"]
+        print(f"[{time.perf_counter() - t0:7.0f} s] {config.stem} / {backend} -> {out}",
+              flush=True)
+        subprocess.run(cmd, check=True)
+    return json.loads(mpath.read_text())
+
+
+def _worlds_study(a) -> tuple[str, dict]:
+    names = WORLDS
+    if a.only:
+        unknown = [k for k in a.only if k not in WORLDS]
+        if unknown:
+            raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
+                             f"{', '.join(WORLDS)}")
+        names = tuple(n for n in WORLDS if n in a.only)
+    t0 = time.perf_counter()
+    results = {}
+    f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)  # noqa: E731
+    lines = ["| world | backend | runs | success | collisions robot / obstacle / workspace "
+             "| min d/rho | min clearance obstacle / workspace (m) | median makespan (s) "
+             "| replan ms (median / p95, seed 0) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name in names:
+        config = ROOT / "worlds" / f"{name}.toml"
+        out = a.out / "worlds" / f"{name}__{a.seeds}seeds"
+        print(f"[{time.perf_counter() - t0:7.0f} s] {name} / {a.seeds} seeds -> {out}", flush=True)
+        cell = _cell(config, a.seeds, out, a.batch)
+        runs = {b: _run_once(config, a.out / "worlds" / f"{name}__seed0__{b}", b, t0)
+                for b in a.backends}
+        results[name] = {"sweep": cell, "seed0": {b: {k: m.get(k) for k in (
+            "success", "collisions", "obstacle_collisions", "workspace_violations",
+            "min_separation_ratio", "min_obstacle_clearance_m", "min_workspace_clearance_m",
+            "makespan_s", "solver")} for b, m in runs.items()}}
+        if "ideal" in runs:
+            s = runs["ideal"]["solver"]
+            ms = f"{f(s['median_ms'], '{:.1f}')} / {f(s['p95_ms'], '{:.1f}')}"
+        else:
+            ms = "-"
+        mk = f(cell["makespan_median_s"], "{:.2f}")
+        lines.append(
+            f"| {name} | ideal | {cell['runs']} | {100 * cell['success_rate']:.0f}% | "
+            f"{cell['collisions_total']} / {f(cell['obstacle_collisions_total'], '{}')} / "
+            f"{f(cell['workspace_violations_total'], '{}')} | "
+            f"{f(cell['min_separation_ratio'])} | {f(cell['min_obstacle_clearance_m'])} / "
+            f"{f(cell['min_workspace_clearance_m'])} | {mk} | {ms} |")
+        if "mjx" in runs:
+            m = runs["mjx"]
+            s = m["solver"]
+            lines.append(
+                f"| {name} | mjx (seed 0) | 1 | {100 * float(m['success']):.0f}% | "
+                f"{m['collisions']} / {f(m.get('obstacle_collisions'), '{}')} / "
+                f"{f(m.get('workspace_violations'), '{}')} | {f(m['min_separation_ratio'])} | "
+                f"{f(m.get('min_obstacle_clearance_m'))} / "
+                f"{f(m.get('min_workspace_clearance_m'))} | {f(m['makespan_s'], '{:.2f}')} | "
+                f"{f(s['median_ms'], '{:.1f}')} / {f(s['p95_ms'], '{:.1f}')} (mjx period) |")
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return "\n".join(lines), results
+
+
+# ---------------------------------------------------------------------------------------
 # docs/RESULTS.md
 # ---------------------------------------------------------------------------------------
 
@@ -310,16 +396,18 @@ def main(argv=None) -> int:
                     help="runs per compiled batch (default: jaxplan.sweep's, one per CPU device)")
     ap.add_argument("--fleets", nargs="+", choices=tuple(FLEETS), default=tuple(FLEETS))
     ap.add_argument("--backends", nargs="+", choices=BACKENDS, default=BACKENDS,
-                    help="paper: the backends to run (default both)")
+                    help="paper, worlds: the backends to run (default both)")
     ap.add_argument("--only", nargs="+",
-                    help="only these settings (collision modes, fault names, or paper scenarios)")
+                    help="only these settings (collision modes, fault names, paper scenarios "
+                         "or worlds)")
     ap.add_argument("--results", type=Path, default=RESULTS,
                     help="the results page to (re)write (default docs/RESULTS.md)")
     ap.add_argument("--no-results", action="store_true",
                     help="do not rewrite the results page after the study")
     a = ap.parse_args(argv)
     if a.study != "results":
-        table, aggregates = (_paper_study if a.study == "paper" else _sweep_study)(a)
+        study = {"paper": _paper_study, "worlds": _worlds_study}.get(a.study, _sweep_study)
+        table, aggregates = study(a)
         print(table)
         a.out.mkdir(parents=True, exist_ok=True)
         (a.out / f"{a.study}.md").write_text(table + "\n")
