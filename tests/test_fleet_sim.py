@@ -189,7 +189,9 @@ def test_world_contacts_match_c_engine(sim):
     """The per-period minimum signed distance of every vehicle to every obstacle and face
     (and its time) is the brute-force minimum over the C engine's physics states; the
     metrics count robot 0 in the sphere and robot 1 on the floor, nothing for robot 2."""
-    from jaxplan.experiment import sim_world_report
+    from types import SimpleNamespace
+
+    from jaxplan.experiment import SIM_WORLD_KEYS, sim_metrics, sim_world_report
 
     model, state = sim
     plans = min_jerk(START, WORLD_GOAL)
@@ -214,6 +216,11 @@ def test_world_contacts_match_c_engine(sim):
     t_floor = rep["worst_workspace"]["t"]
     assert 1.0 < t_floor < 2.0                       # low when the descent ends
     assert np.all(clear[2] > 0.5)                    # robot 2 stays clear of everything
+    # metrics.json's "sim" block (backend mjx) carries the same report
+    period = jax.tree.map(lambda *x: np.stack(x), *recs)
+    scenario = SimpleNamespace(radius=radius, v_max=np.full(3, 3.0), world=WORLD)
+    over, _ = sim_metrics(scenario, period, n * PERIOD)
+    assert {k: over["sim"][k] for k in SIM_WORLD_KEYS} == rep
     # the report of an unbounded, empty world: nothing to count
     empty = sim_world_report(World.unbounded(3), np.zeros((2, 3, 0)), np.zeros((2, 3, 0)),
                              radius)

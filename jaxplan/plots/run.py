@@ -202,9 +202,8 @@ def _draw_clearance(ax, data: RunData, c, what: str) -> None:
                 xytext=(-8 if right else 8, 8), textcoords="offset points", fontsize=8,
                 color="tab:red", ha="right" if right else "left",
                 bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.8))
-    top = float(np.percentile(per_robot, 95)) if per_robot.size else 1.0
-    ax.set_ylim(min(-0.1, 1.15 * worst) if worst < 0 else -0.1 * max(top, 0.5),
-                max(top, 0.5) * 1.1)
+    top = max(float(per_robot.max()), 0.5)
+    ax.set_ylim(min(-0.1, 1.15 * worst) if worst < 0 else -0.1 * top, top * 1.08)
     if data.t.size > 1 and data.t[-1] > data.t[0]:
         ax.set_xlim(data.t[0], data.t[-1])
     ax.set_xlabel("t [s]")

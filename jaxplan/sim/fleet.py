@@ -31,9 +31,18 @@ Inside one period (a ``lax.scan`` over control ticks at ``control_hz``):
    signed distances from every vehicle's centre to every obstacle and workspace face
    of the world (:func:`jaxplan.world.signed_distance`, exact for spheres, boxes,
    cylinders and planes to 1e-6 m; the vehicle's body is the sphere of its collision
-   radius, subtracted by the caller), with the time of each minimum.  The world's
-   geoms do not collide in MuJoCo (:mod:`jaxplan.sim.model`): a contact is measured,
-   never felt.
+   radius, subtracted by the caller), with the time of each minimum.
+
+The world is measured, not collided.  The stepped models carry no geoms at all; the
+MJCF of :func:`jaxplan.sim.model.fleet_xml` with ``world=`` holds the floor, walls and
+obstacles as non-colliding geoms for pictures and the C engine.  A contact with the
+world fails the run (metrics.json), so a contact response would only change what
+happens after the failure, and it is expensive in MJX: measured on the 2-core CPU
+(``jaxplan bench sim``, ``world_cost_*``; one Firefly, the ground and 20 obstacles),
+mjx.step runs 3.3-3.4k steps/s with the geoms colliding (contacts + constraint solver)
+against 28-31k without geoms, and compiles ~4x longer; the per-step distances cost
+0.98-1.08x the time of a world without them (10 vehicles, in scan; within the noise of
+the shared machine).
 
 Period grid.  Time is kept as an integer count of control ticks (``SimState.tick``).
 A period ends at the first control tick at or after the next multiple of ``period_s``
