@@ -115,13 +115,16 @@ def _plot_trajectories(data: RunData, out: Path) -> Path:
         return save_png(fig, out / name)
 
 
-def _world_handles(world) -> list:
-    """Legend entries of the world's obstacles and faces (none without them)."""
+def _world_handles(world, axes: int = 3) -> list:
+    """Legend entries of the world's obstacles and faces (of its first ``axes`` axes);
+    none without them."""
     out = []
-    if world is not None and world.num_obstacles:
+    if world is None:
+        return out
+    if world.num_obstacles:
         out.append(Patch(facecolor=OBSTACLE_FACE, edgecolor=OBSTACLE_EDGE, alpha=0.6,
                          label=f"obstacle{'s' if world.num_obstacles > 1 else ''}"))
-    if world is not None and world.num_faces:
+    if np.any(np.isfinite(world.lo[:axes])) or np.any(np.isfinite(world.hi[:axes])):
         out.append(Patch(facecolor=WALL, alpha=0.3, label="workspace face"))
     return out
 
@@ -148,7 +151,7 @@ def _plot_top_view(data: RunData, out: Path) -> Path:
         handles = [
             Line2D([], [], ls="", marker="o", mfc="white", mec="0.3", mew=1.5, label="start"),
             Line2D([], [], ls="", marker="^", color="0.5", mec="k", mew=0.6, label="goal"),
-            *_world_handles(data.world),
+            *_world_handles(data.world, axes=2),
         ]
         robot_handles = ax.get_legend_handles_labels()[0] if m <= 12 else []
         fig.legend(handles=handles + robot_handles, loc="outside right upper", frameon=False)

@@ -29,21 +29,21 @@ FLOOR = "0.55"
 WALL = "#7f93b0"
 
 
-def has_world(world: World | None) -> bool:
-    """Whether a world has anything to draw or measure (an obstacle or a finite face)."""
-    return world is not None and (world.num_obstacles > 0 or world.num_faces > 0)
-
-
 def world_extent(world: World | None, near_lo, near_hi):
-    """(lo, hi) (N,) m: the box [near_lo, near_hi] grown to hold every obstacle and every
-    finite workspace bound no farther from it than its largest side (a far wall does not
-    shrink the paths to a dot)."""
+    """(lo, hi) (N,) m: the box [near_lo, near_hi] grown to hold the obstacles and the
+    finite workspace bounds, but by at most its largest side on each side (a far wall or
+    a very tall pillar does not shrink the paths to a dot; what lies beyond is cut off)."""
     lo, hi = np.array(near_lo, np.float64), np.array(near_hi, np.float64)
     if world is None:
         return lo, hi
+    reach = float(np.max(hi - lo))
+    far_lo, far_hi = lo - reach, hi + reach
     for k in range(world.num_obstacles):
         a, b = obstacle_box(world, k)
-        lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+        if np.any(a > far_hi) or np.any(b < far_lo):
+            continue  # too far to show
+        lo = np.minimum(lo, np.maximum(a, far_lo))
+        hi = np.maximum(hi, np.minimum(b, far_hi))
     reach = float(np.max(hi - lo))
     for i in range(world.dim):
         if np.isfinite(world.lo[i]) and world.lo[i] >= lo[i] - reach:
@@ -71,7 +71,7 @@ def obstacle_box(world: World, k: int):
 
 def draw_world_3d(ax, world: World | None, lim) -> None:
     """Obstacles and finite workspace faces on a 3-D axes whose limits are ``lim``
-    (3, 2)."""
+    (3, 2); boxes and cylinders are cut at the limits, obstacles outside them left out."""
     if world is None:
         return
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
@@ -88,6 +88,10 @@ def draw_world_3d(ax, world: World | None, lim) -> None:
             edgecolors="0.35" if floor else WALL, linewidths=0.6))
     for k in range(world.num_obstacles):
         kind, c = int(world.kind[k]), world.center[k]
+        a, b = obstacle_box(world, k)
+        a, b = np.maximum(a, lim[:, 0]), np.minimum(b, lim[:, 1])
+        if np.any(a >= b):
+            continue  # outside the view
         style = dict(color=OBSTACLE_FACE, alpha=0.35, linewidth=0, shade=True)
         if kind == SPHERE:
             u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 17), np.linspace(0, np.pi, 9))
@@ -95,17 +99,17 @@ def draw_world_3d(ax, world: World | None, lim) -> None:
             ax.plot_surface(c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v),
                             c[2] + r * np.cos(v), **style)
         elif kind == CYLINDER:
-            r, h = world.radius[k], world.half[k, 2]
-            u, z = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.array([-h, h]))
-            ax.plot_surface(c[0] + r * np.cos(u), c[1] + r * np.sin(u), c[2] + z, **style)
+            r = world.radius[k]
+            u, z = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.array([a[2], b[2]]))
+            ax.plot_surface(c[0] + r * np.cos(u), c[1] + r * np.sin(u), z, **style)
             ring = np.linspace(0, 2 * np.pi, 25)
             caps = [np.column_stack([c[0] + r * np.cos(ring), c[1] + r * np.sin(ring),
-                                     np.full(ring.size, c[2] + s * h)]) for s in (-1, 1)]
+                                     np.full(ring.size, zc)]) for zc in (a[2], b[2])]
             ax.add_collection3d(Poly3DCollection(caps, facecolors=OBSTACLE_FACE, alpha=0.35,
                                                  edgecolors=OBSTACLE_EDGE, linewidths=0.5))
         else:
             ax.add_collection3d(Poly3DCollection(
-                _box_faces(c, world.half[k]), facecolors=OBSTACLE_FACE, alpha=0.35,
+                _box_faces((a + b) / 2, (b - a) / 2), facecolors=OBSTACLE_FACE, alpha=0.35,
                 edgecolors=OBSTACLE_EDGE, linewidths=0.6))
 
 
