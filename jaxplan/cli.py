@@ -192,6 +192,11 @@ def summary(m: dict, out: Path, cache: str | None = None) -> str:
     if tr:
         lines.insert(4, f"  tracking error: rms {100 * tr['rms_m']:.2f} cm, max "
                         f"{100 * tr['max_m']:.2f} cm (simulated vs planned position)")
+    if "obstacle_collisions" in m:
+        lines.insert(2, f"  obstacle contacts {m['obstacle_collisions']} (min clearance "
+                        f"{f(m.get('min_obstacle_clearance_m'))} m)   workspace violations "
+                        f"{m.get('workspace_violations', 0)} (min clearance "
+                        f"{f(m.get('min_workspace_clearance_m'))} m)")
     return "\n".join(lines)
 
 

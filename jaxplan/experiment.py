@@ -35,7 +35,7 @@ from jaxplan.planner import (
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
 from jaxplan.timing import timed
-from jaxplan.world import StaticRows, static_rows, world_arrays
+from jaxplan.world import StaticRows, World, face_names, static_rows, world_arrays
 
 T_MIN = 0.05  # s, lower bound on every plan's horizon
 ACCEPT_VIOLATION = 1e-3  # m^2: largest collision-constraint violation accepted at max-iters
@@ -193,7 +193,8 @@ def simulate_mjx(config: Config, scenario: Scenario, fp: FleetParams, task: Task
         raise ValueError(f"{config.source or config.name}: sim.backend = 'mjx' needs 3-D "
                          "positions")
     sim, _ = sf.init_sim(list(scenario.vehicles), scenario.start,
-                         physics_hz=config.sim.physics_hz, control_hz=config.sim.control_hz)
+                         physics_hz=config.sim.physics_hz, control_hz=config.sim.control_hz,
+                         world=scenario.world)
     period = 1.0 / config.planner.replan_hz
     fn = jax.jit(lambda fp, task, st, ss: cl.mjx_step(fp, task, st, ss, structure, sim, period))
     st, ss = cl.mjx_initial_state(task, structure, sim)
@@ -230,11 +231,64 @@ def _run_periods(call, carry, steps: int, progress):
     return carry, records, run_s, ms
 
 
+# the world keys of metrics.json that the mjx backend measures (sim_metrics)
+SIM_WORLD_KEYS = ("obstacle_collisions", "min_obstacle_clearance_m", "worst_obstacle",
+                  "workspace_violations", "min_workspace_clearance_m", "worst_workspace")
+
+
+def sim_world_report(world: World, static_dist, static_t, radius) -> dict:
+    """The world's contacts on the simulated states (SIM_WORLD_KEYS).
+
+    Args:
+        world: the scenario's World (its static_rows: K obstacles, then the finite faces).
+        static_dist: (P, M, R) per period, each robot's minimum centre signed distance to
+            each row over every physics state (PeriodRecord.static_dist), m.
+        static_t: (P, M, R) when, s.  radius: (M,) collision radii, m.
+    Returns:
+        obstacle_collisions / workspace_violations: (robot, obstacle) / (robot, face)
+        pairs whose clearance (signed distance - radius) fell below 0;
+        min_obstacle_clearance_m / min_workspace_clearance_m: the minimum clearance (None
+        without obstacles / finite faces); worst_obstacle {robot, obstacle, t} /
+        worst_workspace {robot, face ("z_min", ...), t} of that minimum (None likewise).
+    """
+    sd = np.asarray(static_dist, np.float64)
+    ts = np.asarray(static_t, np.float64)
+    P, M, R = sd.shape
+    K = world.num_obstacles
+    faces = face_names(world)
+    if R != K + len(faces):
+        raise ValueError(f"static_dist has {R} rows, the world {K} obstacles and "
+                         f"{len(faces)} faces")
+    filled = np.where(np.isnan(sd), np.inf, sd)
+    p = np.argmin(filled, axis=0) if P else np.zeros((M, R), int)  # (M, R) period of the min
+    dmin = np.take_along_axis(filled, p[None], axis=0)[0] if P else np.full((M, R), np.inf)
+    tmin = np.take_along_axis(ts, p[None], axis=0)[0] if P else np.full((M, R), np.nan)
+    clear = dmin - np.asarray(radius, np.float64)[:, None]
+    out = {}
+    for what, cols, label, name in (("obstacle", slice(0, K), "obstacle", list(range(K))),
+                                    ("workspace", slice(K, R), "face", faces)):
+        c, t = clear[:, cols], tmin[:, cols]
+        hits = int(np.sum(c < 0))
+        count = "obstacle_collisions" if what == "obstacle" else "workspace_violations"
+        out[count] = hits
+        if c.size and np.any(np.isfinite(c)):
+            i, k = np.unravel_index(int(np.argmin(c)), c.shape)
+            out[f"min_{what}_clearance_m"] = _num(c[i, k])
+            out[f"worst_{what}"] = {"robot": int(i), label: name[k], "t": _num(t[i, k])}
+        else:
+            out[f"min_{what}_clearance_m"] = None
+            out[f"worst_{what}"] = None
+    return out
+
+
 def sim_metrics(scenario: Scenario, period, duration: float) -> tuple[dict, dict]:
     """Metrics measured on the simulated states (backend "mjx").
 
     Separation: the minimum centre distance over every physics step (PeriodRecord.min_dist).
-    Kinematics and tracking: the control-rate samples.  Returns (metric overrides, arrays).
+    World contacts: the minimum signed distance of every robot's centre to every obstacle
+    and workspace face over every physics step (PeriodRecord.static_dist) minus its
+    collision radius (:func:`sim_world_report`).  Kinematics and tracking: the
+    control-rate samples.  Returns (metric overrides, arrays).
     """
     valid = np.asarray(period.valid)  # (P, K)
     t = np.asarray(period.t)[valid]
@@ -253,6 +307,8 @@ def sim_metrics(scenario: Scenario, period, duration: float) -> tuple[dict, dict
         "min_separation_ratio": _num(sep["min_separation_ratio"]),
         "worst_pair": list(sep["worst_pair"]) if sep["worst_pair"] is not None else None,
         "separation_source": "simulated states at physics rate",
+        **sim_world_report(scenario.world, period.static_dist, period.static_t,
+                           scenario.radius),
         "peak_speed": _num(speed.max()),
         "peak_speed_over_limit": _num(np.max(speed.max(axis=1) / scenario.v_max)),
         "tracking": {"rms_m": _num(np.sqrt(np.mean(err**2))), "max_m": _num(err.max()),
@@ -463,7 +519,7 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
         over, sim_arrays = sim_metrics(scenario, period, metrics["duration_s"])
         s = over["sim"]
         for k in ("collisions", "min_separation_ratio", "worst_pair", "peak_speed",
-                  "peak_speed_over_limit"):
+                  "peak_speed_over_limit", *SIM_WORLD_KEYS):
             metrics[k] = s.pop(k)
         metrics.update(s)
         for r, o in zip(metrics["per_robot"], over["per_robot"], strict=True):
@@ -471,7 +527,9 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
             r["planned_max_jerk"] = r.pop("max_jerk")
             r["max_jerk"] = None  # not measured on the simulation (no jerk sensor)
             r.update(o)
-        metrics["success"] = bool(metrics["success_reached"] and metrics["collisions"] == 0)
+        metrics["success"] = bool(metrics["success_reached"] and metrics["collisions"] == 0
+                                  and metrics["obstacle_collisions"] == 0
+                                  and metrics["workspace_violations"] == 0)
         metrics["solver"]["timing"] = "wall time of each period: replan + physics + control"
         arrays.update(sim_arrays)
     metrics["compile_s"] = compile_s

@@ -258,6 +258,14 @@ def static_rows(world: World, rows: int | None = None) -> StaticRows:
     return StaticRows(kind, center, half, radius, mask)
 
 
+def face_names(world: World) -> list[str]:
+    """The finite workspace faces in :func:`static_rows`' order: "x_min", ..., "z_max"
+    (the lower bounds by axis, then the upper ones)."""
+    axes = "xyz"[:world.dim] if world.dim <= 3 else [f"x{i}" for i in range(world.dim)]
+    return [f"{axes[i]}_{side}" for bound, side in ((world.lo, "min"), (world.hi, "max"))
+            for i in np.flatnonzero(np.isfinite(bound))]
+
+
 def no_static_rows(N: int) -> StaticRows:
     """Zero static rows (an NLP without a world)."""
     return static_rows(World.unbounded(N))

@@ -46,6 +46,18 @@ def test_every_benchmark_section_shows_its_figures():
     assert page.count("## ") == 3
 
 
+def test_world_cost_row():
+    sim = {**SIM, "world_cost_rtf_in_scan_none": 33.0, "world_cost_rtf_in_scan_ground_20": 32.1,
+           "world_cost_slowdown_ground_20": 1.028, "world_cost_slowdown_ground": 1.01,
+           "world_cost_physics_steps_per_s_none": 31232.0,
+           "world_cost_physics_steps_per_s_colliding": 3281.0}
+    page = markdown({"sim": sim}, machine="m", commit="c", date="d")
+    for figure in ("the ground and 20 obstacles", "32.1x real time", "1.03x the time",
+                   "3,281 steps/s", "31,232"):
+        assert figure in page, figure
+    assert "obstacles" not in markdown({"sim": SIM}, machine="m", commit="c", date="d")
+
+
 def test_missing_benchmarks_are_left_out():
     page = markdown({"solver": {k: v for k, v in SOLVER.items() if k != "fleet100_k"}},
                     machine="m", commit="c", date="d")

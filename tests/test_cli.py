@@ -63,6 +63,27 @@ def test_run_writes_every_contract_file(tmp_path, capsys, tiny_run, monkeypatch)
     assert abs(m["min_separation_ratio"] - tiny_run.metrics["min_separation_ratio"]) < 1e-9
 
 
+def test_summary_names_the_world_contacts(tmp_path):
+    from jaxplan.cli import summary
+
+    m = {"name": "w", "success": False, "robots": 2, "backend": "mjx", "replans": 8,
+         "duration_s": 1.0, "collisions": 0, "min_separation_ratio": 1.5,
+         "makespan_s": None, "peak_speed": 1.0, "peak_speed_over_limit": 0.5,
+         "per_robot": [{"reached": True}] * 2, "compile_s": 1.0, "run_s": 1.0,
+         "solver": {"median_ms": 1.0, "p95_ms": 2.0, "max_ms": 3.0, "converged_frac": 1.0},
+         "fallbacks": {"kept_previous": 0, "braking": 0, "best_effort": 0},
+         "tracking": {"rms_m": 0.01, "max_m": 0.02}}
+    lines = summary(m, tmp_path).splitlines()
+    assert not any("obstacle" in ln for ln in lines)
+    assert lines[4].startswith("  tracking error")
+    m.update(obstacle_collisions=1, min_obstacle_clearance_m=-0.2409,
+             workspace_violations=0, min_workspace_clearance_m=None)
+    lines = summary(m, tmp_path).splitlines()
+    assert lines[2] == ("  obstacle contacts 1 (min clearance -0.241 m)   workspace "
+                        "violations 0 (min clearance n/a m)")
+    assert lines[5].startswith("  tracking error")
+
+
 def test_bad_config_is_one_clear_line(tmp_path, capsys):
     cfg = tmp_path / "bad.toml"
     cfg.write_text(TINY_TOML.replace('seed = 0', 'seed = 0\n[planner]\nq_ob = 3.0'))

@@ -27,7 +27,8 @@ from tests._proc import child_env, jaxplan_cmd, kill_when
 from tests.conftest import TINY_TOML
 
 CONTRACT = ("config.toml", "trajectories.npz", "metrics.json")
-FIGURES = ("trajectories_3d.png", "speed_acc.png", "separation.png", "animation.gif")
+FIGURES = ("trajectories_3d.png", "trajectories_top.png", "speed_acc.png", "separation.png",
+           "clearance.png", "animation.gif")
 TEMP = re.compile(r"^\..+\.tmp(\.mp4)?$")  # the writers' hidden temporary names
 
 

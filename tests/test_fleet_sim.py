@@ -1,8 +1,9 @@
 """Tests of jaxplan.sim.fleet: the MJX closed loop that tracks the planner's plans.
 
 One 3-vehicle mixed fleet (hummingbird, firefly, neo11), 500 Hz physics, 250 Hz
-control, 8 Hz periods (31.25 control ticks: periods of 32 and 31 ticks alternate) is
-shared by most tests so that ``simulate_period`` compiles once for them.
+control, 8 Hz periods (31.25 control ticks: periods of 32 and 31 ticks alternate), in a
+world with a floor, a ceiling and one obstacle of each kind (WORLD), is shared by most
+tests so that ``simulate_period`` compiles once for them.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import jaxplan  # noqa: F401  (x64)
 from jaxplan.sim import fleet, se3
 from jaxplan.sim import model as sm
 from jaxplan.trajectory import Trajectory
+from jaxplan.vehicles import get_vehicle
+from jaxplan.world import World, signed_distance, static_rows
 
 NAMES = ["hummingbird", "firefly", "neo11"]
 START = np.array([[0.0, 0.0, 1.0], [0.0, 2.0, 1.5], [0.0, 4.0, 2.0]])
@@ -26,9 +29,20 @@ PERIOD = 0.125
 HZ_C, HZ_P = 250.0, 500.0
 
 
+# away from every other test's paths; vehicle 0's line to WORLD_GOAL[0] crosses the
+# sphere, vehicle 1 descends below its radius above the floor, vehicle 2 stays clear
+WORLD = World(np.array([-np.inf, -np.inf, 0.0]), np.array([np.inf, np.inf, 6.0]),
+              np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 3)),
+              np.zeros(0)).with_obstacles([
+                  dict(kind="sphere", center=[1.5, 0.0, 1.0], radius=0.3),
+                  dict(kind="box", center=[1.0, 5.5, 2.0], half_extents=[0.3, 0.3, 0.3]),
+                  dict(kind="cylinder", center=[-3.0, 2.5, 1.0], radius=0.2, half_height=1.0)])
+WORLD_GOAL = np.array([[2.0, 0.0, 1.0], [0.0, 2.0, 0.15], [2.0, 4.0, 2.0]])
+
+
 @pytest.fixture(scope="module")
 def sim():
-    return fleet.init_sim(NAMES, START)
+    return fleet.init_sim(NAMES, START, world=WORLD)
 
 
 def min_jerk(p0, p1, peak_speed=2.0):
@@ -169,6 +183,50 @@ def test_matches_c_engine_and_pairwise_minimum(sim):
     assert overall[0, 1] < 0.5                       # they did come close
     # physics rate matters: the tick-rate samples miss the true minimum
     assert brute_force_min(pos.transpose(1, 0, 2))[0, 1] > overall[0, 1]
+
+
+def test_world_contacts_match_c_engine(sim):
+    """The per-period minimum signed distance of every vehicle to every obstacle and face
+    (and its time) is the brute-force minimum over the C engine's physics states; the
+    metrics count robot 0 in the sphere and robot 1 on the floor, nothing for robot 2."""
+    from types import SimpleNamespace
+
+    from jaxplan.experiment import SIM_WORLD_KEYS, sim_metrics, sim_world_report
+
+    model, state = sim
+    plans = min_jerk(START, WORLD_GOAL)
+    n = 16                                            # 2 s; the plans last 1.1-1.9 s
+    state, recs = run_periods(model, state, plans, n)
+    _, phys, bounds, sub = c_reference(plans, n)
+    rows = static_rows(WORLD)
+    sd = signed_distance(rows.kind, rows.center, rows.half, rows.radius, phys)  # (P+1, M, R)
+    for p, r in enumerate(recs):
+        a, b = bounds[p] * sub, bounds[p + 1] * sub + 1
+        np.testing.assert_allclose(r.static_dist, sd[a:b].min(0), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(r.static_t, (a + sd[a:b].argmin(0)) / HZ_P, atol=1e-12)
+    radius = np.array([get_vehicle(v).radius for v in NAMES])
+    rep = sim_world_report(WORLD, np.stack([r.static_dist for r in recs]),
+                           np.stack([r.static_t for r in recs]), radius)
+    clear = sd.min(0) - radius[:, None]              # (M, R): 3 obstacles, z_min, z_max
+    assert rep["obstacle_collisions"] == 1 and rep["workspace_violations"] == 1, rep
+    assert rep["worst_obstacle"]["robot"] == 0 and rep["worst_obstacle"]["obstacle"] == 0
+    assert rep["worst_workspace"]["robot"] == 1 and rep["worst_workspace"]["face"] == "z_min"
+    assert rep["min_obstacle_clearance_m"] == pytest.approx(clear[:, :3].min(), abs=1e-9)
+    assert rep["min_workspace_clearance_m"] == pytest.approx(clear[:, 3:].min(), abs=1e-9)
+    t_floor = rep["worst_workspace"]["t"]
+    assert 1.0 < t_floor < 2.0                       # low when the descent ends
+    assert np.all(clear[2] > 0.5)                    # robot 2 stays clear of everything
+    # metrics.json's "sim" block (backend mjx) carries the same report
+    period = jax.tree.map(lambda *x: np.stack(x), *recs)
+    scenario = SimpleNamespace(radius=radius, v_max=np.full(3, 3.0), world=WORLD)
+    over, _ = sim_metrics(scenario, period, n * PERIOD)
+    assert {k: over["sim"][k] for k in SIM_WORLD_KEYS} == rep
+    # the report of an unbounded, empty world: nothing to count
+    empty = sim_world_report(World.unbounded(3), np.zeros((2, 3, 0)), np.zeros((2, 3, 0)),
+                             radius)
+    assert empty == {"obstacle_collisions": 0, "min_obstacle_clearance_m": None,
+                     "worst_obstacle": None, "workspace_violations": 0,
+                     "min_workspace_clearance_m": None, "worst_workspace": None}
 
 
 # ----------------------------------------------------------------------------- bad plans

@@ -15,9 +15,11 @@ import jaxplan  # noqa: F401
 from jaxplan import media, plots
 from jaxplan.metrics import sample_pieces
 from jaxplan.plots.animation import animate, frame_times
-from jaxplan.plots.run import _pair_minima
+from jaxplan.plots.run import _pair_minima, _plot_clearance, _plot_top_view, _plot_trajectories
+from jaxplan.plots.scene import clearances
 from jaxplan.results import load_run
 from jaxplan.sweep_csv import best_setting
+from jaxplan.world import World, world_arrays
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 GIF_MAGICS = (b"GIF89a", b"GIF87a")
@@ -37,10 +39,11 @@ def min_jerk_piece(p0, p1, T):
     return c
 
 
-def make_run(run_dir, *, ndim=3, metrics=True, config=None, drop=None, nan_key=None):
+def make_run(run_dir, *, ndim=3, metrics=True, config=None, drop=None, nan_key=None,
+             world=None):
     """A 3-robot run: robots 0 and 1 swap along x passing 0.7 m apart (rho = 0.54 m,
     ratio 1.296), robot 2 crosses them later; each moves on one quintic piece, then holds
-    its goal on a constant piece until t_end = 5 s."""
+    its goal on a constant piece until t_end = 5 s.  ``world``: stored with the run."""
     starts = np.array([[-2.0, 0.0, 1.0], [2.0, 0.7, 1.0], [0.0, -2.5, 1.6]])[:, :ndim]
     goals = np.array([[2.0, 0.0, 1.0], [-2.0, 0.7, 1.0], [0.0, 2.5, 1.6]])[:, :ndim]
     durations = [4.0, 4.0, 3.0]
@@ -62,6 +65,8 @@ def make_run(run_dir, *, ndim=3, metrics=True, config=None, drop=None, nan_key=N
         vehicle=np.array(["hummingbird", "hummingbird", "firefly"]),
         seg_robot=seg[0], seg_t0=seg[1], seg_t1=seg[2], seg_coeffs=seg[3],
     )
+    if world is not None:
+        data.update(world_arrays(world))
     if nan_key is not None:
         data[nan_key] = data[nan_key].copy()
         data[nan_key][1, 7, 0] = np.nan
@@ -84,8 +89,9 @@ def check_png(path, size):
         assert im.size == size
         a = np.asarray(im.convert("RGB"), dtype=float)
     assert a.std() > 10.0, f"{path.name} looks blank (std {a.std():.2f})"
-    # a real figure uses many colours, not two or three
-    assert np.unique(a.reshape(-1, 3), axis=0).shape[0] > 20
+    # a real figure uses many colours, not two or three (RGB packed into one integer)
+    rgb = a.reshape(-1, 3).astype(np.uint32)
+    assert np.unique((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]).size > 20
 
 
 def check_gif(path, size, min_frames=2):
@@ -114,12 +120,16 @@ def test_plot_run_3d_writes_every_figure(tmp_path):
     paths = plots.plot_run(run, max_frames=16)
     assert dict(matplotlib.rcParams) == rc  # no global style leaked
     names = [p.name for p in paths]
-    assert names == ["trajectories_3d.png", "speed_acc.png", "separation.png", "animation.gif"]
+    assert names == ["trajectories_3d.png", "trajectories_top.png", "speed_acc.png",
+                     "separation.png", "clearance.png", "animation.gif"]
     assert all(p.parent == run / "figures" for p in paths)
     check_png(paths[0], (840, 720))
-    check_png(paths[1], (960, 660))
-    check_png(paths[2], (1320, 576))
-    n = check_gif(paths[3], (640, 480))
+    check_png(paths[1], (840, 720))
+    check_png(paths[2], (960, 660))
+    check_png(paths[3], (1320, 576))
+    with Image.open(paths[4]) as im:   # no world stored: a note, no curves
+        assert im.size == (1320, 576)
+    n = check_gif(paths[5], (640, 480))
     assert 2 <= n <= 16
     assert not [p for p in (run / "figures").iterdir() if p.name.startswith(".")]  # no temp
 
@@ -128,16 +138,93 @@ def test_plot_run_2d_without_optional_files(tmp_path):
     run = make_run(tmp_path / "planar", ndim=2, metrics=False)
     paths = plots.plot_run(run, max_frames=8)
     assert [p.name for p in paths] == [
-        "trajectories_2d.png", "speed_acc.png", "separation.png", "animation.gif"]
+        "trajectories_2d.png", "speed_acc.png", "separation.png", "clearance.png",
+        "animation.gif"]
     check_png(paths[0], (840, 720))
-    check_gif(paths[3], (640, 480))
+    check_gif(paths[4], (640, 480))
 
 
 def test_plot_run_without_animation_and_pieces(tmp_path):
     run = make_run(tmp_path / "r", drop=("seg_robot", "seg_t0", "seg_t1", "seg_coeffs"))
     paths = plots.plot_run(run, animation=False)
-    assert [p.name for p in paths] == ["trajectories_3d.png", "speed_acc.png", "separation.png"]
+    assert [p.name for p in paths] == ["trajectories_3d.png", "trajectories_top.png",
+                                       "speed_acc.png", "separation.png", "clearance.png"]
     assert not (run / "figures" / "animation.gif").exists()
+
+
+# robot 0 flies through the sphere, robot 2 past the cylinder; y >= -3 m, z in [0, 2.5] m
+WORLD_OBSTACLES = [dict(kind="sphere", center=[0.0, 0.0, 1.0], radius=0.4),
+                   dict(kind="box", center=[-1.0, 2.0, 1.0], half_extents=[0.4, 0.3, 0.8]),
+                   dict(kind="cylinder", center=[1.5, -1.5, 1.0], radius=0.3, half_height=1.0)]
+
+
+def make_world(ndim=3):
+    obs = [{k: (v[:ndim] if isinstance(v, list) else v) for k, v in o.items()
+            if ndim == 3 or k != "half_height"} for o in WORLD_OBSTACLES]
+    lo, hi = [-np.inf, -3.0, 0.0][:ndim], [np.inf, np.inf, 2.5][:ndim]
+    if ndim == 2:
+        hi = [2.5, np.inf]   # a wall at x = 2.5 m
+    empty = World.unbounded(ndim)
+    return World(np.array(lo), np.array(hi), empty.kind, empty.center, empty.half,
+                 empty.radius).with_obstacles(obs)
+
+
+OBSTACLE_BLEND = np.array([212.0, 193.0, 173.0])  # the top view's tan at alpha 0.55 on white
+
+
+def obstacle_pixels(path):
+    with Image.open(path) as im:
+        a = np.asarray(im.convert("RGB"), dtype=float)
+    return int(np.sum(np.all(np.abs(a - OBSTACLE_BLEND) <= 3, axis=-1)))
+
+
+def test_plot_run_in_a_world(tmp_path):
+    """Obstacles and faces are drawn in every view; the clearance figure has curves."""
+    w = make_world()
+    run = make_run(tmp_path / "w", world=w)
+    m = json.loads((run / "metrics.json").read_text())
+    m.update(obstacle_collisions=1, min_obstacle_clearance_m=-0.67, workspace_violations=0,
+             min_workspace_clearance_m=0.185)
+    (run / "metrics.json").write_text(json.dumps(m))
+    paths = plots.plot_run(run, max_frames=3)
+    check_png(paths[1], (840, 720))
+    check_png(paths[4], (1320, 576))
+    check_gif(paths[5], (640, 480))
+    # the same run without a world: the 3-D view, the top view and the animation change
+    bare = load_run(make_run(tmp_path / "bare"))
+    out = tmp_path / "bare" / "figures"
+    bare_paths = [_plot_trajectories(bare, out), _plot_top_view(bare, out),
+                  animate(bare, out, mp4=False, max_frames=3)]
+    for a, b in zip([paths[0], paths[1], paths[5]], bare_paths, strict=True):
+        with Image.open(a) as ia, Image.open(b) as ib:
+            diff = np.abs(np.asarray(ia.convert("RGB"), float)
+                          - np.asarray(ib.convert("RGB"), float)).mean()
+        assert diff > 1.0, (a.name, diff)
+    # the top view: the three footprints (~0.5 + 0.28 + 0.48 m^2 at ~100 px/m), none bare
+    assert obstacle_pixels(paths[1]) > 3000 and obstacle_pixels(bare_paths[1]) == 0
+    # planar: discs, a rectangle and the two walls in the 2-D view; clearance curves
+    d2 = load_run(make_run(tmp_path / "w2", ndim=2, world=make_world(2)))
+    out2 = tmp_path / "w2" / "figures"
+    assert obstacle_pixels(_plot_trajectories(d2, out2)) > 3000
+    check_png(_plot_clearance(d2, out2), (1320, 576))
+
+
+def test_clearances_against_direct_formulas(tmp_path):
+    """clearance = distance to each obstacle's surface / face - radius, by hand."""
+    d = load_run(make_run(tmp_path / "w", world=make_world()))
+    obs, ws = clearances(d.world, d.pos, d.radius)
+    p, r = d.pos, d.radius[:, None]
+    sph = np.linalg.norm(p - [0.0, 0.0, 1.0], axis=-1) - 0.4 - r
+    q = np.abs(p - [-1.0, 2.0, 1.0]) - [0.4, 0.3, 0.8]
+    box = np.linalg.norm(np.maximum(q, 0), axis=-1) + np.minimum(q.max(-1), 0) - r
+    rho = np.linalg.norm(p[..., :2] - [1.5, -1.5], axis=-1) - 0.3
+    hz = np.abs(p[..., 2] - 1.0) - 1.0
+    cyl = np.hypot(np.maximum(rho, 0), np.maximum(hz, 0)) + np.minimum(np.maximum(rho, hz), 0) - r
+    np.testing.assert_allclose(obs, np.stack([sph, box, cyl], -1), atol=3e-6)
+    faces = np.stack([p[..., 1] + 3.0, p[..., 2], 2.5 - p[..., 2]], -1) - r[..., None]
+    np.testing.assert_allclose(ws, faces, atol=1e-12)       # y_min, z_min, z_max
+    assert obs[0, :, 0].min() < -0.6                          # robot 0 through the sphere
+    assert clearances(None, p, d.radius)[0].shape == (3, p.shape[1], 0)
 
 
 def test_frame_count_is_bounded():

@@ -21,6 +21,7 @@ import jaxplan  # noqa: F401  (x64)
 from jaxplan.sim import model as sm
 from jaxplan.sim import se3
 from jaxplan.vehicles import GRAVITY, get_vehicle
+from jaxplan.world import World, face_names, signed_distance, static_rows
 
 NAMES = ["hummingbird", "firefly", "neo11"]
 POS = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.5], [2.0, 0.5, 2.0]])
@@ -50,6 +51,57 @@ def test_fleet_model_structure():
         assert d.ncon == 0
     np.testing.assert_allclose(sm.fleet_state(d.qpos, d.qvel).quat[2],
                                se3.yaw_to_quat(-1.0), atol=1e-12)
+
+
+WORLD_OBSTACLES = [
+    dict(kind="sphere", center=[1.0, 2.0, 3.0], radius=0.5),
+    dict(kind="box", center=[0.0, 0.0, 1.0], half_extents=[0.1, 0.2, 0.3]),
+    dict(kind="cylinder", center=[2.0, 0.0, 1.5], radius=0.3, half_height=1.5),
+]
+
+
+def test_world_geoms_match_signed_distance():
+    """Every obstacle kind and workspace face is a geom with the right type, size and
+    pose: MuJoCo's own geom distance (mj_geomDistance, the C engine's collision code)
+    from the vehicle's collision sphere to each of them equals the world's signed distance
+    minus the radius, outside and inside."""
+    base = World.default(3).with_obstacles(WORLD_OBSTACLES)
+    w = World(np.array([-5.0, -np.inf, 0.0]), np.array([np.inf, 6.0, 2.5]), base.kind,
+              base.center, base.half, base.radius)
+    m = sm.fleet_model(["firefly"], [[0.0, 0.0, 1.0]], world=w, hull_radii=[0.3],
+                       visual=False)
+    names = ["obstacle0", "obstacle1", "obstacle2", "ws_x_min", "ws_z_min", "ws_y_max",
+             "ws_z_max"]
+    assert face_names(w) == ["x_min", "z_min", "y_max", "z_max"]
+    gid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)
+    G = mujoco.mjtGeom
+    types = [G.mjGEOM_SPHERE, G.mjGEOM_BOX, G.mjGEOM_CYLINDER] + [G.mjGEOM_PLANE] * 4
+    assert [int(m.geom_type[gid(n)]) for n in names] == [int(t) for t in types]
+    np.testing.assert_array_equal(m.geom_size[gid("obstacle2")], [0.3, 1.5, 0.0])
+    np.testing.assert_array_equal(m.geom_pos[gid("obstacle1")], [0.0, 0.0, 1.0])
+    assert np.all(m.geom_contype == 0) and np.all(m.geom_conaffinity == 0)
+    rows = static_rows(w)
+    d = mujoco.MjData(m)
+    hull = gid("r0_hull")
+    rng = np.random.default_rng(0)
+    inside = 0
+    for p in rng.uniform([-1.0, -1.0, -0.5], [3.0, 3.0, 3.0], size=(40, 3)):
+        d.qpos[:3] = p
+        mujoco.mj_forward(m, d)
+        ref = [mujoco.mj_geomDistance(m, d, hull, gid(n), 10.0, None) for n in names]
+        ours = signed_distance(rows.kind, rows.center, rows.half, rows.radius, p) - 0.3
+        np.testing.assert_allclose(ours, ref, atol=1e-5)   # measured: 2e-6
+        inside += int(np.sum(np.asarray(ref) < 0))
+    assert inside >= 10   # penetrations too, not only gaps
+    # no world: the picture ground at z = 0; the default world: the floor only
+    m0 = sm.fleet_model(["firefly"], [[0.0, 0.0, 1.0]])
+    assert mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_GEOM, "ground") >= 0
+    m1 = sm.fleet_model(["firefly"], [[0.0, 0.0, 1.0]], world=World.default(3), visual=False)
+    assert [m1.geom(g).name for g in range(m1.ngeom)] == ["ws_z_min"]
+    with pytest.raises(ValueError, match="3-D"):
+        sm.fleet_xml(["firefly"], [[0.0, 0.0, 1.0]], world=World.default(2))
+    with pytest.raises(ValueError, match="hull_radii"):
+        sm.fleet_xml(["firefly"], [[0.0, 0.0, 1.0]], hull_radii=[0.3, 0.4])
 
 
 def test_xml_errors():

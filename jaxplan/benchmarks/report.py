@@ -100,6 +100,18 @@ def _sim(r: dict) -> list[str]:
         rows.append(("one world, physics only", f"MJX {r['mjx_physics_only_steps_per_s']:,.0f} "
                      "steps/s", f"MuJoCo C mj_step {r['c_mj_step_steps_per_s']:,.0f} "
                      f"({r['ratio_mjx_physics_only_vs_c_mj_step']:.2f}x)"))
+    key = next((k for k in r if k.startswith("world_cost_slowdown_ground_")), None)
+    if key is not None:
+        world = key.removeprefix("world_cost_slowdown_")   # "ground_20"
+        note = ""
+        if "world_cost_physics_steps_per_s_colliding" in r:
+            note = (f"as colliding MuJoCo geoms instead: MJX physics "
+                    f"{r['world_cost_physics_steps_per_s_colliding']:,.0f} steps/s, without "
+                    f"{r['world_cost_physics_steps_per_s_none']:,.0f} (one vehicle)")
+        rows.append((f"one world (in scan), the ground and {world.split('_')[1]} obstacles "
+                     "measured every physics step",
+                     f"{r['world_cost_rtf_in_scan_' + world]:.1f}x real time, "
+                     f"{r[key]:.2f}x the time without a world", note))
     return ["## Closed loop (`jaxplan bench sim`)", "",
             f"{r['vehicles']} vehicles in MJX: physics {r['physics_hz']} Hz, control "
             f"{r['control_hz']} Hz, the planner at 8 Hz.", "", *_table(rows), ""]

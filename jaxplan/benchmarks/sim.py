@@ -29,6 +29,16 @@ float64; every figure is the median of several repetitions, compile time apart):
 * ``c_mj_step_steps_per_s``: plain ``mujoco.mj_step`` on the same MuJoCo model (one
   world, constant controls), measured in the same run; ``c_rollout_64_world_steps_per_s``:
   ``mujoco.rollout`` of 64 worlds on 2 threads.  Ratios are MJX / C.
+* ``world_cost``: what measuring the world costs: the in-scan figure of the default
+  layout with no world, with the ground only (what every 3-D run measures) and with
+  the ground and WORLD_OBSTACLES obstacles (spheres, boxes, cylinders), every
+  vehicle's distance to each of them taken after every physics step
+  (:mod:`jaxplan.sim.fleet`); the three compiled first, then timed in turn, so that
+  their ratios come from the same minutes of the machine.  Beside it, why the world's
+  geoms do not collide in MuJoCo: ``world_cost_physics_steps_per_s_{none,geoms,
+  colliding}``, mjx.step alone for one Firefly without geoms, with the world's geoms
+  (non-colliding) and the collision sphere, and with them colliding (MJX contacts and
+  constraint solver).
 * ``headroom``: with a closed-loop target of 5x real time for one world, the wall time
   per 0.125 s period left for planning = 0.125 / 5 - (physics + control per period).
 
@@ -175,6 +185,84 @@ def _bench_layout(layout: str, sim_seconds: float, reps: int, worlds: int) -> di
     return out
 
 
+WORLD_OBSTACLES = 20
+
+
+def bench_world(n_obstacles: int = WORLD_OBSTACLES):
+    """The ground and ``n_obstacles`` obstacles (spheres, boxes, cylinders in turn) around
+    the benchmark fleet, away from its paths."""
+    from jaxplan.world import World
+
+    obs = []
+    for k in range(n_obstacles):
+        ang = 2 * np.pi * k / max(1, n_obstacles)
+        c = [6.5 * np.cos(ang), 6.5 * np.sin(ang), 1.5]
+        obs.append([dict(kind="sphere", center=c, radius=0.4),
+                    dict(kind="box", center=c, half_extents=[0.3, 0.4, 1.0]),
+                    dict(kind="cylinder", center=c, radius=0.3, half_height=1.5)][k % 3])
+    return World.default(3).with_obstacles(obs)
+
+
+def _bench_world_cost(sim_seconds: float, reps: int) -> dict:
+    """The in-scan figure with no world, the ground, the ground + WORLD_OBSTACLES."""
+    from jaxplan.world import World
+
+    n_periods = int(round(sim_seconds / PERIOD_S))
+    p0, plans = _fleet_setup(len(NAMES))
+    runs = {}
+    for label, world in (("none", World.unbounded(3)), ("ground", World.default(3)),
+                         (f"ground_{WORLD_OBSTACLES}", bench_world())):
+        sim, st0 = fleet.init_sim(NAMES, p0, world=world)
+
+        def scan_loop(st, sim=sim):
+            def body(st, k):
+                st, rec = fleet.simulate_period(sim, st, plans, k * PERIOD_S, PERIOD_S)
+                return st, rec.static_dist.min(initial=jnp.inf)
+            return jax.lax.scan(body, st, jnp.arange(n_periods))
+
+        fn = jax.jit(scan_loop)
+        jax.block_until_ready(fn(st0))
+        runs[label] = (fn, st0, [])
+    for _ in range(reps):
+        for fn, st0, times in runs.values():
+            t = time.perf_counter()
+            jax.block_until_ready(fn(st0))
+            times.append(time.perf_counter() - t)
+    out = {f"world_cost_rtf_in_scan_{k}": sim_seconds / float(np.median(v[2]))
+           for k, v in runs.items()}
+    out.update(_bench_contact_cost(reps))
+    base = out["world_cost_rtf_in_scan_none"]
+    for k in ("ground", f"ground_{WORLD_OBSTACLES}"):
+        out[f"world_cost_slowdown_{k}"] = base / out[f"world_cost_rtf_in_scan_{k}"]
+    return out
+
+
+def _bench_contact_cost(reps: int, steps: int = 1000) -> dict:
+    """mjx.step of one hovering Firefly: no geoms / the bench world's geoms and its
+    collision sphere, non-colliding / the same, colliding."""
+    mjx = fleet.mjx
+    xml0 = sim_model_lib.fleet_xml(["firefly"], [[0.0, 0.0, 1.5]], visual=False)
+    xml1 = sim_model_lib.fleet_xml(["firefly"], [[0.0, 0.0, 1.5]], visual=False,
+                                   world=bench_world(), hull_radii=[0.3])
+    xml2 = xml1.replace('contype="0" conaffinity="0"', 'contype="1" conaffinity="1"')
+    runs = {}
+    for label, xml in (("none", xml0), ("geoms", xml1), ("colliding", xml2)):
+        mx = mjx.put_model(mujoco.MjModel.from_xml_string(xml))
+        dx = mjx.make_data(mx).replace(
+            ctrl=jnp.array([get_vehicle("firefly").mass * GRAVITY, 0.0, 0.0, 0.0]))
+        fn = jax.jit(lambda d, mx=mx: jax.lax.scan(
+            lambda d, _: (mjx.step(mx, d), None), d, length=steps)[0])
+        jax.block_until_ready(fn(dx))
+        runs[label] = (fn, dx, [])
+    for _ in range(reps):
+        for fn, dx, times in runs.values():
+            t = time.perf_counter()
+            jax.block_until_ready(fn(dx))
+            times.append(time.perf_counter() - t)
+    return {f"world_cost_physics_steps_per_s_{k}": steps / float(np.median(v[2]))
+            for k, v in runs.items()}
+
+
 def _bench_c(sim_seconds: float, reps: int, worlds: int) -> dict:
     M = len(NAMES)
     p0, _ = _fleet_setup(M)
@@ -273,6 +361,10 @@ def run(json_path=None, *, quick: bool = False, layouts=("vmap", "fleet")) -> di
         res["layouts"][lay] = _bench_layout(lay, sim_seconds, reps, worlds)
         print(f"[{lay}] " + ", ".join(f"{k}={v:.4g}" for k, v in res["layouts"][lay].items()),
               flush=True)
+    res["world_cost"] = _bench_world_cost(sim_seconds, reps)
+    print("[world cost] " + ", ".join(f"{k}={v:.4g}" for k, v in res["world_cost"].items()),
+          flush=True)
+    res.update(res["world_cost"])
     c2 = _bench_c(sim_seconds, reps, worlds)  # again after, to see the machine's drift
     for k in c:
         res[k] = float(np.median([c[k], c2[k]]))
@@ -289,7 +381,7 @@ def run(json_path=None, *, quick: bool = False, layouts=("vmap", "fleet")) -> di
     res["headroom_planning_ms_per_period_at_5x_in_scan"] = 1e3 * (
         PERIOD_S / 5.0 - PERIOD_S / best["physics_control_rtf_in_scan"])
     for k in sorted(res):
-        if k not in ("layouts", "closed_loop", "closed_loop_transit"):
+        if k not in ("layouts", "closed_loop", "closed_loop_transit", "world_cost"):
             v = res[k]
             print(f"{k:50s} {v:.4g}" if isinstance(v, float) else f"{k:50s} {v}")
     if json_path:

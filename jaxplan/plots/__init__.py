@@ -6,6 +6,7 @@
 
 Modules: :mod:`~jaxplan.plots.run` (the static run figures),
 :mod:`~jaxplan.plots.animation`, :mod:`~jaxplan.plots.sweep` (the heatmaps),
+:mod:`~jaxplan.plots.scene` (the world: obstacles, faces, clearances),
 :mod:`~jaxplan.plots.style` (sizes, style, colours, saving).  The data come from
 :func:`jaxplan.results.load_run` (a run directory, validated) and
 :mod:`jaxplan.sweep_csv` (sweep.csv, its grid and best setting); the animation's frames
@@ -18,13 +19,23 @@ or calling this module leaves no global matplotlib state behind.
 Run figures (``run_dir/figures/``), sizes in pixels:
 
     trajectories_3d.png  840 x 720   paths in 3-D (equal aspect), starts o, goals ^,
-                                     waypoints x; ``trajectories_2d.png`` for planar (N=2)
+                                     waypoints x, the world's obstacles and finite
+                                     workspace faces (:mod:`~jaxplan.plots.scene`);
+                                     ``trajectories_2d.png`` for planar (N=2)
+    trajectories_top.png 840 x 720   (N=3 only) the x-y view: paths, obstacle
+                                     footprints, the finite x and y faces
     speed_acc.png        960 x 660   |v| and |a| over time per robot, dotted limit lines
     separation.png      1320 x 576   d_ij(t) / rho_ij for every pair, the line at 1, each
                                      pair's minimum, the worst pair highlighted; and the
                                      M x M matrix of per-pair minimum ratios
-    animation.gif        640 x 480   the fleet moving (<= max_frames frames, ~16.7 fps),
-                                     markers scaled to the collision radius, 2 s trails;
+    clearance.png       1320 x 576   each robot's clearance over time (signed distance -
+                                     radius, from the samples): min over the obstacles,
+                                     and beside it min over the finite workspace faces;
+                                     the line at 0, the worst instant marked (a note
+                                     when the world is empty and unbounded)
+    animation.gif        640 x 480   the fleet moving in its world (<= max_frames
+                                     frames, ~16.7 fps), markers scaled to the
+                                     collision radius, 2 s trails;
                                      ``animation.mp4`` instead when mp4=True and ffmpeg
                                      is on PATH
 

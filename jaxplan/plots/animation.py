@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.collections import LineCollection
 
 from jaxplan import media
+from jaxplan.plots.scene import draw_world_2d, draw_world_3d
 from jaxplan.plots.style import (
     ANIM_DPI,
     FIGSIZE,
@@ -101,8 +102,9 @@ def _use_mp4(mp4: bool) -> bool:
 
 
 def _static_scene(data: RunData, cols, lim):
-    """(figure, axes) with what every frame shares: the axes, faint full paths, goals
-    and the title."""
+    """(figure, axes) with what every frame shares: the axes, the world (obstacles and
+    workspace faces, :mod:`jaxplan.plots.scene`), faint full paths, goals and the
+    title."""
     m, n = data.num_robots, data.ndim
     fig = new_figure(FIGSIZE["animation"], dpi=ANIM_DPI, layout=None)
     fig.subplots_adjust(left=0.02 if n == 3 else 0.12, right=0.98,
@@ -112,6 +114,9 @@ def _static_scene(data: RunData, cols, lim):
     if n == 3:
         ax.set_proj_type("ortho")
         ax.view_init(elev=25, azim=-60)
+        draw_world_3d(ax, data.world, lim)
+    else:
+        draw_world_2d(ax, data.world, lim)
     for i in range(m):
         ax.plot(*data.pos[i].T, color=cols[i], lw=0.8, alpha=0.2)
         ax.plot(*data.goal[i][:, None], ls="", marker="^", ms=6, color=cols[i], mec="k",

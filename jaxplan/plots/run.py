@@ -1,5 +1,6 @@
-"""The static figures of a run directory: paths, speed and acceleration against the
-limits, pairwise separation (:func:`plot_run`; the sizes are in :mod:`jaxplan.plots`)."""
+"""The static figures of a run directory: paths (3-D and top views) in the run's world,
+speed and acceleration against the limits, pairwise separation, clearance to the
+obstacles and the workspace (:func:`plot_run`; the sizes are in :mod:`jaxplan.plots`)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,16 @@ import matplotlib
 import numpy as np
 from matplotlib import colors as mcolors
 from matplotlib.lines import Line2D
-from matplotlib.patches import Rectangle
+from matplotlib.patches import Patch, Rectangle
 
+from jaxplan.plots.scene import (
+    OBSTACLE_EDGE,
+    OBSTACLE_FACE,
+    WALL,
+    clearances,
+    draw_world_2d,
+    draw_world_3d,
+)
 from jaxplan.plots.style import (
     ANNOTATE_MAX,
     FIGSIZE,
@@ -23,6 +32,7 @@ from jaxplan.plots.style import (
     save_png,
 )
 from jaxplan.results import RunData, load_run
+from jaxplan.world import face_names
 
 MAX_PAIR_LINES = 45  # draw every pair's curve up to this many pairs, else the envelope
 
@@ -38,15 +48,18 @@ def plot_run(run_dir, *, animation=True, mp4=False, max_frames=150) -> list[Path
             warning and the GIF otherwise).
         max_frames: the animation's frame bound (>= 2).
 
-    Returns: the paths written, in the order trajectories, speed_acc, separation,
-    animation.
+    Returns: the paths written, in the order trajectories, trajectories_top (3-D runs),
+    speed_acc, separation, clearance, animation.
     """
     data = load_run(run_dir)
     out = Path(run_dir) / "figures"
-    paths = [
-        _plot_trajectories(data, out),
+    paths = [_plot_trajectories(data, out)]
+    if data.ndim == 3:
+        paths.append(_plot_top_view(data, out))
+    paths += [
         _plot_speed_acc(data, out),
         _plot_separation(data, out),
+        _plot_clearance(data, out),
     ]
     if animation:
         from jaxplan.plots.animation import animate
@@ -66,6 +79,10 @@ def _plot_trajectories(data: RunData, out: Path) -> Path:
     with matplotlib.rc_context(STYLE):
         fig = new_figure(FIGSIZE["trajectories"])
         ax = fig.add_subplot(projection="3d" if n == 3 else None)
+        if n == 3:
+            draw_world_3d(ax, data.world, lim)
+        else:
+            draw_world_2d(ax, data.world, lim)
         for i in range(m):
             p = data.pos[i]
             ax.plot(*p.T, color=cols[i], lw=1.6, label=_robot_label(data, i))
@@ -87,6 +104,7 @@ def _plot_trajectories(data: RunData, out: Path) -> Path:
         ]
         if data.waypoints is not None:
             handles.append(Line2D([], [], ls="", marker="x", color="0.3", label="waypoint"))
+        handles += _world_handles(data.world)
         robot_handles = ax.get_legend_handles_labels()[0] if m <= 12 else []
         fig.legend(handles=handles + robot_handles, loc="outside right upper", frameon=False)
         ttl = f"{data.name}: {m} robot{'s' if m != 1 else ''}, paths"
@@ -95,6 +113,116 @@ def _plot_trajectories(data: RunData, out: Path) -> Path:
         ax.set_title(ttl)
         name = "trajectories_3d.png" if n == 3 else "trajectories_2d.png"
         return save_png(fig, out / name)
+
+
+def _world_handles(world, axes: int = 3) -> list:
+    """Legend entries of the world's obstacles and faces (of its first ``axes`` axes);
+    none without them."""
+    out = []
+    if world is None:
+        return out
+    if world.num_obstacles:
+        out.append(Patch(facecolor=OBSTACLE_FACE, edgecolor=OBSTACLE_EDGE, alpha=0.6,
+                         label=f"obstacle{'s' if world.num_obstacles > 1 else ''}"))
+    if np.any(np.isfinite(world.lo[:axes])) or np.any(np.isfinite(world.hi[:axes])):
+        out.append(Patch(facecolor=WALL, alpha=0.3, label="workspace face"))
+    return out
+
+
+def _plot_top_view(data: RunData, out: Path) -> Path:
+    """trajectories_top.png: the x-y projection of a 3-D run, with the obstacles'
+    footprints and the finite x, y workspace faces."""
+    m = data.num_robots
+    cols = robot_colors(m)
+    lim = bounds(data)[:2]
+    with matplotlib.rc_context(STYLE):
+        fig = new_figure(FIGSIZE["trajectories"])
+        ax = fig.add_subplot()
+        draw_world_2d(ax, data.world, lim)
+        for i in range(m):
+            p = data.pos[i]
+            ax.plot(p[:, 0], p[:, 1], color=cols[i], lw=1.6, label=_robot_label(data, i),
+                    zorder=2)
+            ax.plot(*p[0, :2], ls="", marker="o", ms=7, mfc="white", mec=cols[i], mew=1.8,
+                    zorder=3)
+            ax.plot(*data.goal[i, :2], ls="", marker="^", ms=8, color=cols[i], mec="k",
+                    mew=0.6, zorder=3)
+        apply_bounds(ax, lim, 2)
+        handles = [
+            Line2D([], [], ls="", marker="o", mfc="white", mec="0.3", mew=1.5, label="start"),
+            Line2D([], [], ls="", marker="^", color="0.5", mec="k", mew=0.6, label="goal"),
+            *_world_handles(data.world, axes=2),
+        ]
+        robot_handles = ax.get_legend_handles_labels()[0] if m <= 12 else []
+        fig.legend(handles=handles + robot_handles, loc="outside right upper", frameon=False)
+        ax.set_title(f"{data.name}: top view (x-y)")
+        return save_png(fig, out / "trajectories_top.png")
+
+
+def _plot_clearance(data: RunData, out: Path) -> Path:
+    """clearance.png: each robot's clearance (signed distance - radius, min over the
+    obstacles; beside it, min over the finite workspace faces) over time, the line at 0,
+    the worst instant marked (:func:`jaxplan.plots.scene.clearances`)."""
+    obs, ws = clearances(data.world, data.pos, data.radius)
+    panels = [(c, what) for c, what in ((obs, "obstacle"), (ws, "workspace"))
+              if c.shape[-1]]
+    with matplotlib.rc_context(STYLE):
+        fig = new_figure(FIGSIZE["clearance"])
+        if not panels:
+            ax = fig.add_subplot()
+            ax.text(0.5, 0.5, "no obstacles and an unbounded workspace: no clearance",
+                    ha="center", va="center", transform=ax.transAxes)
+            ax.set_axis_off()
+            return save_png(fig, out / "clearance.png")
+        axes = fig.subplots(1, len(panels), sharey=False, squeeze=False)[0]
+        for ax, (c, what) in zip(axes, panels, strict=True):
+            _draw_clearance(ax, data, c, what)
+        if data.num_robots <= 12:
+            fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper",
+                       frameon=False)
+        fig.suptitle(f"{data.name}: clearance to the world (from the samples)")
+        return save_png(fig, out / "clearance.png")
+
+
+def _draw_clearance(ax, data: RunData, c, what: str) -> None:
+    """One panel: min over the rows of c (M, K, R) per robot over time, the zero line, the
+    worst (robot, row, time) in red, metrics.json's figures in the title."""
+    m = data.num_robots
+    cols = robot_colors(m)
+    per_robot = c.min(axis=2)  # (M, K)
+    for i in range(m):
+        ax.plot(data.t, per_robot[i], color=cols[i], lw=1.2, label=_robot_label(data, i))
+    ax.axhspan(min(0.0, float(per_robot.min())) - 1.0, 0.0, color="tab:red", alpha=0.07,
+               lw=0)
+    ax.axhline(0.0, color="k", ls="--", lw=1.2)
+    i, k, j = np.unravel_index(int(np.argmin(c)), c.shape)
+    worst = float(c[i, k, j])
+    rows = (list(range(c.shape[2])) if what == "obstacle" else face_names(data.world))
+    ax.plot([data.t[k]], [worst], ls="", marker="o", ms=7, mfc="tab:red", mec="k", zorder=5)
+    row = f"obstacle {rows[j]}" if what == "obstacle" else f"face {rows[j]}"
+    right = data.t[-1] > data.t[0] and data.t[k] > 0.6 * data.t[-1] + 0.4 * data.t[0]
+    ax.annotate(f"robot {i}, {row}: {worst:.3f} m at t = {data.t[k]:.2f} s", (data.t[k], worst),
+                xytext=(-8 if right else 8, 8), textcoords="offset points", fontsize=8,
+                color="tab:red", ha="right" if right else "left",
+                bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.8))
+    top = max(float(per_robot.max()), 0.5)
+    ax.set_ylim(min(-0.1, 1.15 * worst) if worst < 0 else -0.1 * top, top * 1.08)
+    if data.t.size > 1 and data.t[-1] > data.t[0]:
+        ax.set_xlim(data.t[0], data.t[-1])
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("signed distance - radius [m]")
+    title = "Obstacle clearance (min over obstacles)" if what == "obstacle" else \
+        "Workspace clearance (min over faces)"
+    count, key = (("obstacle_collisions", "min_obstacle_clearance_m") if what == "obstacle"
+                  else ("workspace_violations", "min_workspace_clearance_m"))
+    v = data.metrics.get(key)
+    if isinstance(v, int | float) and not isinstance(v, bool):
+        title += f"\nmetrics.json: min {v:.4f} m"
+        n = data.metrics.get(count)
+        if isinstance(n, int) and not isinstance(n, bool):
+            title += f", {n} {'contact' if what == 'obstacle' else 'violation'}" \
+                     f"{'s' if n != 1 else ''}"
+    ax.set_title(title, loc="left")
 
 
 def _plot_speed_acc(data: RunData, out: Path) -> Path:

@@ -11,6 +11,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from jaxplan.fileio import atomic_write
+from jaxplan.plots.scene import world_extent
 from jaxplan.results import RunData
 
 DPI = 120
@@ -19,6 +20,7 @@ FIGSIZE = {  # inches; x DPI = pixels
     "trajectories": (7.0, 6.0),
     "speed_acc": (8.0, 5.5),
     "separation": (11.0, 4.8),
+    "clearance": (11.0, 4.8),
     "animation": (6.4, 4.8),
     "sweep_panel": (4.6, 4.0),
 }
@@ -65,7 +67,9 @@ def robot_colors(m: int) -> list:
 
 def bounds(data: RunData, pad_frac=0.05):
     """Axis limits (N, 2) with equal scale on every axis: all positions and goals, padded
-    by the largest radius, every range at least 20 % of the largest one."""
+    by the largest radius, and the world's obstacles and nearby finite workspace faces
+    (:func:`jaxplan.plots.scene.world_extent`); every range at least 20 % of the largest
+    one."""
     pts = [data.pos.reshape(-1, data.ndim), data.goal]
     if data.waypoints is not None:
         w = data.waypoints.reshape(-1, data.ndim)
@@ -73,6 +77,7 @@ def bounds(data: RunData, pad_frac=0.05):
     p = np.concatenate(pts)
     lo = p.min(axis=0) - data.radius.max()
     hi = p.max(axis=0) + data.radius.max()
+    lo, hi = world_extent(data.world, lo, hi)
     span = hi - lo
     full = max(span.max(), 1e-6)
     span = np.maximum(span, 0.2 * full) * (1 + 2 * pad_frac)

@@ -27,7 +27,22 @@ Inside one period (a ``lax.scan`` over control ticks at ``control_hz``):
    RotorS first-order motor lag integrated exactly at each physics step toward the
    commanded speeds (the wrench of step k uses the rotor speeds at its start);
 5. after every physics step the pairwise centre distances update a running minimum,
-   so collisions are counted on the simulated states at physics rate.
+   so collisions are counted on the simulated states at physics rate; so do the
+   signed distances from every vehicle's centre to every obstacle and workspace face
+   of the world (:func:`jaxplan.world.signed_distance`, exact for spheres, boxes,
+   cylinders and planes to 1e-6 m; the vehicle's body is the sphere of its collision
+   radius, subtracted by the caller), with the time of each minimum.
+
+The world is measured, not collided.  The stepped models carry no geoms at all; the
+MJCF of :func:`jaxplan.sim.model.fleet_xml` with ``world=`` holds the floor, walls and
+obstacles as non-colliding geoms for pictures and the C engine.  A contact with the
+world fails the run (metrics.json), so a contact response would only change what
+happens after the failure, and it is expensive in MJX: measured on the 2-core CPU
+(``jaxplan bench sim``, ``world_cost_*``; one Firefly, the ground and 20 obstacles),
+mjx.step runs 3.3-3.4k steps/s with the geoms colliding (contacts + constraint solver)
+against 28-31k without geoms, and compiles ~4x longer; the per-step distances cost
+0.98-1.08x the time of a world without them (10 vehicles, in scan; within the noise of
+the shared machine).
 
 Period grid.  Time is kept as an integer count of control ticks (``SimState.tick``).
 A period ends at the first control tick at or after the next multiple of ``period_s``
@@ -83,6 +98,7 @@ from jaxplan.sim import import_mjx, se3
 from jaxplan.sim import model as sim_model_lib
 from jaxplan.trajectory import Trajectory
 from jaxplan.vehicles import get_vehicle
+from jaxplan.world import StaticRows, World, signed_distance, static_rows
 
 mjx = import_mjx()
 
@@ -97,7 +113,7 @@ Array = jax.Array
 
 
 @partial(jax.tree_util.register_dataclass,
-         data_fields=["mjx_model", "params"],
+         data_fields=["mjx_model", "params", "world"],
          meta_fields=["names", "layout", "physics_hz", "control_hz", "motor_lag",
                       "jerk_feedforward", "batched_leaves"])
 @dataclass(frozen=True)
@@ -108,6 +124,9 @@ class SimModel:
         mjx_model: mjx.Model.  ``"fleet"``: the whole fleet.  ``"vmap"``: one body,
             with the leaves listed in ``batched_leaves`` stacked along a leading (M,) axis.
         params: se3.SE3Params with a leading (M,) axis.
+        world: :class:`jaxplan.world.StaticRows` (R rows: the obstacles, then the finite
+            workspace faces; jnp arrays) whose distances are measured every physics
+            step; R = 0 without a world.
         names: (M,) vehicle names (static).
         layout: "vmap" | "fleet" (static).
         physics_hz, control_hz: rates, Hz (static); physics_hz / control_hz is an integer.
@@ -120,6 +139,7 @@ class SimModel:
 
     mjx_model: object
     params: se3.SE3Params
+    world: StaticRows
     names: tuple
     layout: str
     physics_hz: float
@@ -177,6 +197,10 @@ class PeriodRecord(NamedTuple):
         min_dist: (M, M) minimum centre distance of each pair over every physics state
             of the period (the start state and the state after every physics step), m;
             +inf on the diagonal.
+        static_dist: (M, R) minimum over the same states of the signed distance from
+            each vehicle's centre to each row of ``SimModel.world``, m (negative: the
+            centre is inside; subtract the collision radius for the clearance).
+        static_t: (M, R) simulation time of that minimum, s (the first, on ties).
         saturated: (M,) int32: ticks in which some rotor speed was clamped.
         bad_reference: (M,) int32: ticks whose plan sample was non-finite (held instead).
         nonfinite: (M,) bool: the vehicle's simulated state was non-finite at some tick
@@ -191,6 +215,8 @@ class PeriodRecord(NamedTuple):
     ref_pos: Array
     track_err: Array
     min_dist: Array
+    static_dist: Array
+    static_t: Array
     saturated: Array
     bad_reference: Array
     nonfinite: Array
@@ -232,7 +258,8 @@ def _single_model(sim: SimModel):
 
 def init_sim(names: Sequence[str], start_positions, *, physics_hz: float = 500.0,
              control_hz: float = 250.0, motor_lag: bool = False, layout: str = "auto",
-             yaws=None, jerk_feedforward: bool = True, integrator: str = "Euler"):
+             yaws=None, jerk_feedforward: bool = True, integrator: str = "Euler",
+             world: World | None = None):
     """Build the simulated fleet and its initial state (hovering at the starts).
 
     Args:
@@ -246,6 +273,11 @@ def init_sim(names: Sequence[str], start_positions, *, physics_hz: float = 500.0
         yaws: (M,) start yaw = yaw reference, rad (default 0).
         jerk_feedforward: feed the plan's jerk to the controller (see se3).
         integrator: "Euler" (default) or "RK4" (MuJoCo's).
+        world: a 3-D :class:`jaxplan.world.World` whose obstacles and finite workspace
+            faces are measured every physics step (``PeriodRecord.static_dist``), or
+            None (nothing measured: R = 0).  A world with the same number of rows can
+            replace it later (``dataclasses.replace(sim, world=sim_world(w))``) without
+            a recompilation.
     Returns:
         (SimModel, SimState) for one world.
     Raises:
@@ -283,7 +315,9 @@ def init_sim(names: Sequence[str], start_positions, *, physics_hz: float = 500.0
         batched = ()
     else:
         mx, batched = _batched_model(names, physics_hz, integrator)
-    sim = SimModel(mjx_model=mx, params=se3.controller_params(names), names=names,
+    sim = SimModel(mjx_model=mx, params=se3.controller_params(names),
+                   world=sim_world(world if world is not None else World.unbounded(3)),
+                   names=names,
                    layout=layout,
                    physics_hz=physics_hz, control_hz=control_hz, motor_lag=bool(motor_lag),
                    jerk_feedforward=bool(jerk_feedforward), batched_leaves=batched)
@@ -291,6 +325,13 @@ def init_sim(names: Sequence[str], start_positions, *, physics_hz: float = 500.0
     if yaw.shape != (len(names),) or not np.all(np.isfinite(yaw)):
         raise ValueError(f"yaws must be {len(names)} finite angles, got {yaws!r}")
     return sim, initial_state(sim, jnp.asarray(pos), jnp.asarray(yaw))
+
+
+def sim_world(world: World) -> StaticRows:
+    """The rows of a 3-D world that the simulation measures (``SimModel.world``)."""
+    if world.dim != 3:
+        raise ValueError(f"the simulated world must be 3-D, got {world.dim}-D")
+    return StaticRows(*(jnp.asarray(x) for x in static_rows(world)))
 
 
 @jax.jit
@@ -384,11 +425,26 @@ def _positions(sim: SimModel, data) -> Array:
     return _per_vehicle(sim, data.qpos, 7)[..., 0:3]
 
 
+def _static_dists(sim: SimModel, p: Array) -> Array:
+    """(M, R) signed distances from the centres p (M, 3) to the world's rows."""
+    w = sim.world
+    return signed_distance(w.kind, w.center, w.half, w.radius, p, xp=jnp)
+
+
 def _sq_dists(p: Array) -> Array:
     """(M, M) squared centre distances, +inf on the diagonal."""
     d = p[:, None, :] - p[None, :, :]
     d2 = jnp.sum(d * d, axis=-1)
     return jnp.where(jnp.eye(p.shape[0], dtype=bool), jnp.inf, d2)
+
+
+def _static_min(smin, sim: SimModel, p: Array, t):
+    """Running (minimum (M, R), its time (M, R)) updated with the centres p at time t
+    (a non-finite distance never replaces a finite minimum)."""
+    dmin, tmin = smin
+    d = _static_dists(sim, p)
+    lower = d < dmin
+    return jnp.where(lower, d, dmin), jnp.where(lower, t, tmin)
 
 
 def _ticks_in_period(period_s: float, control_hz: float) -> int:
@@ -426,17 +482,18 @@ def _simulate_period(sim: SimModel, state: SimState, plans: Trajectory, t_plan0,
     xs = _plan_samples(sim, plans, t_plan0, K)
     params = sim.params
 
-    def physics(carry, _):
-        data, w, w_sq_cmd, thrust, moments, dmin2 = carry
+    def physics(carry, t_step):
+        data, w, w_sq_cmd, thrust, moments, dmin2, smin = carry
         if sim.motor_lag:
             thrust, moments = jax.vmap(se3.wrench_from_rotor_speeds)(params, w)
             w = jax.vmap(lambda prm, w1, c1: se3.motor_lag(prm, w1, c1, dt_p))(params, w, w_sq_cmd)
         data = _physics_step(sim, data, thrust, moments)
-        dmin2 = jnp.fmin(dmin2, _sq_dists(_positions(sim, data)))
-        return (data, w, w_sq_cmd, thrust, moments, dmin2), None
+        p = _positions(sim, data)
+        dmin2 = jnp.fmin(dmin2, _sq_dists(p))
+        return (data, w, w_sq_cmd, thrust, moments, dmin2, _static_min(smin, sim, p, t_step)), None
 
     def tick(carry, x):
-        data, w, hold, dmin2, sat, bad, nonfin = carry
+        data, w, hold, dmin2, smin, sat, bad, nonfin = carry
         k, rp, rv, ra, rj = x
         active = k < n_active
         ok = (jnp.all(jnp.isfinite(rp), -1) & jnp.all(jnp.isfinite(rv), -1)
@@ -451,26 +508,31 @@ def _simulate_period(sim: SimModel, state: SimState, plans: Trajectory, t_plan0,
         finite_state = out.status != se3.STATUS_BAD_STATE
         w_cmd = jnp.sqrt(out.rotor_speeds_sq)
         carry_p = (data, w if sim.motor_lag else w_cmd, out.rotor_speeds_sq, out.thrust,
-                   out.moments, dmin2)
-        (data2, w2, _, _, _, dmin2_2), _ = jax.lax.scan(physics, carry_p, None,
-                                                       length=sim.substeps)
+                   out.moments, dmin2, smin)
+        t_steps = (k0 + k).astype(jnp.float64) * dt_c + dt_p * jnp.arange(
+            1, sim.substeps + 1, dtype=jnp.float64)
+        (data2, w2, _, _, _, dmin2_2, smin2), _ = jax.lax.scan(physics, carry_p, t_steps)
         acc = _per_vehicle(sim, data.qacc, 6)[:, 0:3]
         err = jnp.linalg.norm(vs.position - ref.position, axis=-1)
         rec = (vs.position, vs.velocity, acc, ref.position, jnp.where(active, err, 0.0))
         sel = lambda new, old: jax.tree.map(lambda a, b: jnp.where(active, a, b), new, old)
         new_carry = (
             sel(data2, data), sel(w2, w), sel(ref.position, hold), sel(dmin2_2, dmin2),
+            sel(smin2, smin),
             sat + (active & out.saturated).astype(jnp.int32),
             bad + (active & ~ok).astype(jnp.int32),
             nonfin | (active & ~finite_state),
         )
         return new_carry, rec
 
-    dmin2_0 = _sq_dists(_positions(sim, state.data))
+    p0 = _positions(sim, state.data)
+    dmin2_0 = _sq_dists(p0)
+    sd0 = _static_dists(sim, p0)
+    smin0 = (sd0, jnp.full(sd0.shape, k0.astype(jnp.float64) * dt_c))
     zeros_i = jnp.zeros(M, jnp.int32)
-    carry0 = (state.data, state.rotor_speed, state.hold_position, dmin2_0, zeros_i, zeros_i,
-              jnp.zeros(M, bool))
-    (data, w, hold, dmin2, sat, bad, nonfin), recs = jax.lax.scan(tick, carry0, xs)
+    carry0 = (state.data, state.rotor_speed, state.hold_position, dmin2_0, smin0, zeros_i,
+              zeros_i, jnp.zeros(M, bool))
+    (data, w, hold, dmin2, smin, sat, bad, nonfin), recs = jax.lax.scan(tick, carry0, xs)
     pos, vel, acc, rpos, err = recs
     qp = _per_vehicle(sim, data.qpos, 7)
     qv = _per_vehicle(sim, data.qvel, 6)
@@ -483,7 +545,8 @@ def _simulate_period(sim: SimModel, state: SimState, plans: Trajectory, t_plan0,
         valid=ks < n_active,
         pos=jnp.swapaxes(pos, 0, 1), vel=jnp.swapaxes(vel, 0, 1), acc=jnp.swapaxes(acc, 0, 1),
         ref_pos=jnp.swapaxes(rpos, 0, 1), track_err=jnp.swapaxes(err, 0, 1),
-        min_dist=jnp.sqrt(dmin2), saturated=sat, bad_reference=bad, nonfinite=nonfin)
+        min_dist=jnp.sqrt(dmin2), static_dist=smin[0], static_t=smin[1], saturated=sat,
+        bad_reference=bad, nonfinite=nonfin)
     return new_state, record
 
 

@@ -14,8 +14,12 @@ belongs to the controller (:func:`jaxplan.sim.se3.allocate`), which hands the th
 and moments of the CLAMPED rotor speeds to these actuators.  The rotor geoms are for
 pictures only: every geom has ``contype = conaffinity = 0``, so nothing ever collides
 (separation is measured, not collided), no contact is ever generated, and the
-constraint solver has nothing to do.  There is a ground plane (also non-colliding) for
-pictures.  No air: density and viscosity are 0, so the only forces are gravity
+constraint solver has nothing to do.  With a world (:func:`world_geoms`) its floor,
+walls, ceiling and obstacles are geoms too, also non-colliding: a robot touching them
+is a collision measured from the simulated states at every physics step (the exact
+signed distance of the robot's collision sphere, as robot pairs are measured;
+:mod:`jaxplan.sim.fleet`), not a contact force.  Without one there is a ground plane at
+z = 0 for pictures.  No air: density and viscosity are 0, so the only forces are gravity
 (9.81 m/s^2, as in RotorS) and the actuators.
 
 Integrator.  ``integrator="Euler"`` (the default; MuJoCo's semi-implicit Euler: the
@@ -55,6 +59,7 @@ import numpy as np
 
 from jaxplan.sim.se3 import VehicleState
 from jaxplan.vehicles import GRAVITY, Vehicle, get_vehicle
+from jaxplan.world import BOX, CYLINDER, SPHERE, World, face_names
 
 INTEGRATORS = ("Euler", "RK4")
 N_CONTROLS = 4  # per vehicle: thrust, moment x, moment y, moment z
@@ -76,8 +81,10 @@ def _compilable_inertia(inertia) -> tuple[float, float, float]:
     return min(ix, iy + iz), min(iy, ix + iz), min(iz, ix + iy)
 
 
-def _vehicle_body(vehicle: Vehicle, prefix: str, pos, yaw: float, visual: bool = True) -> str:
-    """<body> element of one vehicle (free joint, inertial, site, picture geoms if ``visual``)."""
+def _vehicle_body(vehicle: Vehicle, prefix: str, pos, yaw: float, visual: bool = True,
+                  hull: float | None = None) -> str:
+    """<body> element of one vehicle (free joint, inertial, site, picture geoms if
+    ``visual``, the collision sphere ``{prefix}hull`` of radius ``hull`` if given)."""
     px, py, pz = (float(c) for c in pos)
     ix, iy, iz = _compilable_inertia(vehicle.inertia)
     l, rr = vehicle.arm_length, vehicle.rotor_radius
@@ -94,7 +101,12 @@ def _vehicle_body(vehicle: Vehicle, prefix: str, pos, yaw: float, visual: bool =
         col = "0.1 0.1 0.1 0.5" if d > 0 else "0.8 0.1 0.1 0.5"
         geoms.append(f'<geom name="{prefix}rotor{k}" type="cylinder" size="{_f(rr)} 0.004" '
                      f'pos="{_f(x)} {_f(y)} 0.02" rgba="{col}" {nocol}/>')
-    body = "\n      ".join(geoms) if visual else ""
+    if not visual:
+        geoms = []
+    if hull is not None:
+        geoms.append(f'<geom name="{prefix}hull" type="sphere" size="{_f(hull)}" '
+                     f'rgba="{rgba[:-1]}0.15" {nocol}/>')
+    body = "\n      ".join(geoms)
     return f"""
     <body name="{prefix}body" pos="{_f(px)} {_f(py)} {_f(pz)}" quat="{quat}">
       <freejoint name="{prefix}joint"/>
@@ -114,8 +126,60 @@ def _vehicle_actuators(prefix: str) -> str:
     ])
 
 
+def world_geoms(world: World) -> str:
+    """MJCF geoms (children of <worldbody>) of a 3-D :class:`~jaxplan.world.World`.
+
+    Every finite workspace face is a plane named ``ws_<face>`` (``ws_z_min`` is the
+    floor; :func:`jaxplan.world.face_names`) through the bound, its normal (the plane's
+    local z axis) pointing into the workspace; obstacle k is ``obstacle<k>``: a sphere
+    (size = radius), a box (size = half extents) or a vertical cylinder (size = radius,
+    half height) at its centre.  None of them collides (contype = conaffinity = 0, as
+    every geom of the fleet): contact is measured from the simulated states
+    (:mod:`jaxplan.sim.fleet`).
+    """
+    if world.dim != 3:
+        raise ValueError(f"world_geoms: the world is {world.dim}-D; MuJoCo needs 3-D")
+    nocol = 'contype="0" conaffinity="0" group="2"'
+    out = []
+    for name, (c, n) in zip(face_names(world), _faces(world), strict=True):
+        rgba = "0.8 0.8 0.8 1" if name == "z_min" else "0.6 0.7 0.8 0.25"
+        out.append(f'<geom name="ws_{name}" type="plane" size="0 0 1" pos="{_v(c)}" '
+                   f'zaxis="{_v(n)}" rgba="{rgba}" {nocol}/>')
+    for k in range(world.num_obstacles):
+        kind, c = int(world.kind[k]), world.center[k]
+        if kind == SPHERE:
+            typ, size = "sphere", _f(world.radius[k])
+        elif kind == BOX:
+            typ, size = "box", _v(world.half[k])
+        elif kind == CYLINDER:
+            typ, size = "cylinder", f"{_f(world.radius[k])} {_f(world.half[k, 2])}"
+        else:
+            raise ValueError(f"world_geoms: obstacle {k} has unknown kind {kind}")
+        out.append(f'<geom name="obstacle{k}" type="{typ}" size="{size}" pos="{_v(c)}" '
+                   f'rgba="0.55 0.45 0.35 0.8" {nocol}/>')
+    return "".join(f"\n    {g}" for g in out)
+
+
+def _v(x) -> str:
+    return " ".join(_f(c) for c in x)
+
+
+def _faces(world: World):
+    """(point on the face, unit inward normal) of each finite face, face_names' order."""
+    out = []
+    for bound, sign in ((world.lo, 1.0), (world.hi, -1.0)):
+        for i in np.flatnonzero(np.isfinite(bound)):
+            c = np.zeros(world.dim)
+            c[i] = bound[i]
+            n = np.zeros(world.dim)
+            n[i] = sign
+            out.append((c, n))
+    return out
+
+
 def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0.002,
-              integrator: str = "Euler", visual: bool = True) -> str:
+              integrator: str = "Euler", visual: bool = True, world: World | None = None,
+              hull_radii=None) -> str:
     """MJCF of a (heterogeneous) fleet: one non-colliding free body per vehicle.
 
     Args:
@@ -129,6 +193,13 @@ def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0
             the same for every vehicle kind (only mass and inertia differ) and which
             MJX steps faster (no geom kinematics): what :mod:`jaxplan.sim.fleet` uses.
             The dynamics are identical (geoms never collide and carry no mass).
+        world: a 3-D :class:`~jaxplan.world.World` whose workspace faces and obstacles
+            become geoms (:func:`world_geoms`; the floor ``ws_z_min`` replaces the
+            picture ground), or None (no world geoms; the picture ground at z = 0 when
+            ``visual``).
+        hull_radii: (M,) m or None: a sphere geom ``r{i}_hull`` of this radius on each
+            vehicle (its collision radius, for pictures and distance queries such as
+            ``mujoco.mj_geomDistance``; non-colliding, massless).
     Returns:
         The MJCF string.  Vehicle i is body ``r{i}_body`` with joint ``r{i}_joint``,
         site ``r{i}_actuation`` and actuators ``r{i}_thrust, r{i}_mx, r{i}_my, r{i}_mz``
@@ -147,12 +218,23 @@ def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0
         raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
     if not (timestep > 0 and math.isfinite(timestep)):
         raise ValueError(f"timestep must be a positive number of seconds, got {timestep!r}")
-    bodies = "".join(_vehicle_body(v, f"r{i}_", pos[i], yaw[i], visual)
+    if hull_radii is None:
+        hull = [None] * len(vehicles)
+    else:
+        hull = [float(r) for r in np.asarray(hull_radii, np.float64).reshape(-1)]
+        if len(hull) != len(vehicles) or not all(r > 0 and math.isfinite(r) for r in hull):
+            raise ValueError(f"hull_radii must be {len(vehicles)} positive radii, got "
+                             f"{hull_radii!r}")
+    bodies = "".join(_vehicle_body(v, f"r{i}_", pos[i], yaw[i], visual, hull[i])
                      for i, v in enumerate(vehicles))
     scenery = """
-    <light pos="0 0 10" dir="0 0 -1" directional="true"/>
+    <light pos="0 0 10" dir="0 0 -1" directional="true"/>""" if visual else ""
+    if world is not None:
+        scenery += world_geoms(world)
+    elif visual:
+        scenery += """
     <geom name="ground" type="plane" size="50 50 0.1" rgba="0.8 0.8 0.8 1"
-          contype="0" conaffinity="0"/>""" if visual else ""
+          contype="0" conaffinity="0"/>"""
     acts = "\n".join(_vehicle_actuators(f"r{i}_") for i in range(len(vehicles)))
     return f"""<mujoco model="jaxplan_fleet">
   <option timestep="{_f(timestep)}" integrator="{integrator}" gravity="0 0 {_f(-GRAVITY)}"
