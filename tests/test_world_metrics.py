@@ -159,6 +159,22 @@ def test_many_pieces_many_obstacles_one_call():
             assert abs(wc.obstacle[i, k] - refined) <= 1e-9
 
 
+def test_a_piece_behind_a_loose_bound_is_still_solved():
+    """Pruning: a long arc round a sphere has a bounding box that holds the centre (the
+    smallest lower bound, solved first), a short straight piece of the same robot comes
+    10 mm closer than the arc ever does: its minimum is the robot's."""
+    w = one_piece_world(SPHERE, np.zeros(3), np.zeros(3), 1.0)
+    arc = np.array([[2.5, -5.0, 0.0], [0.0, 10.0, -10.0], [0.0, 0.0, 0.0]])
+    f = clearance_fn(SPHERE, np.zeros(3), np.zeros(3), 1.0, arc)
+    _, arc_min = dense_and_refined(f, 1.0)
+    line = np.array([[0.0, 0.05], [-(arc_min + 1.0 - 0.01), 0.0], [0.0, 0.0]])
+    pieces = np.zeros((2, 3, 3))
+    pieces[0], pieces[1, :, :2] = arc, line
+    wc = world_clearance([0, 0], [0.0, 1.0], [1.0, 1.1], pieces, [0.0], w)
+    assert abs(wc.obstacle[0, 0] - (arc_min - 0.01)) <= 1e-12
+    assert 1.0 <= wc.obstacle_t[0, 0] <= 1.1
+
+
 # -------------------------------------------------------------- constructed grazing
 
 
