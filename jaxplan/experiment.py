@@ -21,6 +21,7 @@ import numpy as np
 
 from jaxplan import metrics as mt
 from jaxplan import solve
+from jaxplan import world_metrics as wm
 from jaxplan.config import Config, build_scenario
 from jaxplan.faults import FaultParams, no_faults
 from jaxplan.nlp import Limits, NLPStructure, Weights
@@ -349,24 +350,27 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     min_dist, _ = mt.pairwise_min_separation(*pieces, num_robots=M)
     sep = mt.separation_report(min_dist, scenario.radius)
     kin = mt.kinematics(*pieces, num_robots=M)
+    world = wm.world_report(wm.world_clearance(*pieces, scenario.radius, scenario.world,
+                                               num_robots=M))
     frozen_robot = config.faults.frozen_robot if config.faults.enabled else -1
     reached, ttg, all_reached, makespan = _goals(final, duration, M, frozen_robot)
     info = records.info
     metrics = {
         "name": config.name,
         "backend": config.sim.backend,
-        "success": bool(all_reached and sep["collisions"] == 0),
+        "success": False,  # _success below
         "success_reached": all_reached,
         "collisions": int(sep["collisions"]),
         "min_separation_ratio": _num(sep["min_separation_ratio"]),
         "worst_pair": list(sep["worst_pair"]) if sep["worst_pair"] is not None else None,
+        **{k: v for k, v in world.items() if not k.startswith("per_robot")},
         "makespan_s": makespan,
         "duration_s": duration,
         "replans": int(records.t.shape[0]),
         "robots": M,
         "peak_speed": _num(np.nanmax(kin.max_speed)),
         "peak_speed_over_limit": _num(np.nanmax(kin.max_speed / scenario.v_max)),
-        "per_robot": _per_robot(scenario, reached, ttg, kin),
+        "per_robot": _per_robot(scenario, reached, ttg, kin, world),
         "solver": _solver(info, solve_ms),
         "faults": _fault_summary(config, records, sep, min_dist, scenario, frozen_robot),
         "fallbacks": {
@@ -375,7 +379,15 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
             "goal_occupied": int(np.sum(np.asarray(info.goal_moved))),
         },
     }
+    metrics["success"] = _success(metrics)
     return metrics, _run_arrays(scenario, records, pieces, min_dist, duration)
+
+
+def _success(metrics: dict) -> bool:
+    """Every responsive robot reached every waypoint, and no robot touched another, an
+    obstacle or the workspace's boundary."""
+    return bool(metrics["success_reached"] and metrics["collisions"] == 0
+                and metrics["obstacle_collisions"] == 0 and metrics["workspace_violations"] == 0)
 
 
 def _goals(final, duration: float, M: int, frozen_robot: int):
@@ -390,7 +402,7 @@ def _goals(final, duration: float, M: int, frozen_robot: int):
     return reached, ttg, all_reached, makespan
 
 
-def _per_robot(scenario: Scenario, reached, ttg, kin) -> list[dict]:
+def _per_robot(scenario: Scenario, reached, ttg, kin, world: dict) -> list[dict]:
     """metrics.json ``per_robot``."""
     return [{
         "vehicle": scenario.vehicles[i],
@@ -404,6 +416,8 @@ def _per_robot(scenario: Scenario, reached, ttg, kin) -> list[dict]:
         "v_max": float(scenario.v_max[i]),
         "a_max": float(scenario.a_max[i]),
         "j_max": float(scenario.j_max[i]),
+        "min_obstacle_clearance_m": world["per_robot_obstacle_m"][i],
+        "min_workspace_clearance_m": world["per_robot_workspace_m"][i],
     } for i in range(len(reached))]
 
 
@@ -527,9 +541,7 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
             r["planned_max_jerk"] = r.pop("max_jerk")
             r["max_jerk"] = None  # not measured on the simulation (no jerk sensor)
             r.update(o)
-        metrics["success"] = bool(metrics["success_reached"] and metrics["collisions"] == 0
-                                  and metrics["obstacle_collisions"] == 0
-                                  and metrics["workspace_violations"] == 0)
+        metrics["success"] = _success(metrics)
         metrics["solver"]["timing"] = "wall time of each period: replan + physics + control"
         arrays.update(sim_arrays)
     metrics["compile_s"] = compile_s

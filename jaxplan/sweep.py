@@ -51,7 +51,10 @@ peak_speed_ratio (max speed / v_max, max over robots), converged_frac,
 iterations_median, fallbacks_kept_previous, fallbacks_braking, fallbacks_best_effort,
 fallbacks_goal_occupied (robot replans that planned to a point beside an occupied goal),
 robots, duration_s,
-replans, error (empty unless the run's metrics could not be computed).  Solver timing
+replans, error (empty unless the run's metrics could not be computed),
+obstacle_collisions, min_obstacle_clearance_m (empty without obstacles),
+workspace_violations, min_workspace_clearance_m (empty in an unbounded workspace); success
+also needs no obstacle contact and no workspace violation.  Solver timing
 per replan is not measured in sweeps (one batch is one program).
 
 Figures (``figures/``, :func:`jaxplan.plots.plot_sweep`): heatmaps of success rate,
@@ -241,6 +244,10 @@ def _csv_row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
         "duration_s": _csv_cell(metrics["duration_s"]),
         "replans": _csv_cell(int(metrics["replans"])),
         "error": error,
+        "obstacle_collisions": _csv_cell(int(metrics["obstacle_collisions"])),
+        "min_obstacle_clearance_m": _csv_cell(metrics["min_obstacle_clearance_m"]),
+        "workspace_violations": _csv_cell(int(metrics["workspace_violations"])),
+        "min_workspace_clearance_m": _csv_cell(metrics["min_workspace_clearance_m"]),
     })
     return row
 

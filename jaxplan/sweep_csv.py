@@ -40,6 +40,8 @@ COLUMNS = KEY_COLUMNS + (
     "fallbacks_kept_previous", "fallbacks_braking", "fallbacks_best_effort",
     "fallbacks_goal_occupied", "robots", "duration_s", "replans",
     "error",
+    "obstacle_collisions", "min_obstacle_clearance_m", "workspace_violations",
+    "min_workspace_clearance_m",
 )
 ANALYSIS_COLUMNS = ("q_obs", "q_lim", "scenario", "seed", "success", "min_separation_ratio",
                     "makespan_s", "collisions")

@@ -54,7 +54,8 @@ TINY_TOML = (Path(__file__).resolve().parents[1] / "examples" / "tiny.toml").rea
 # test that asks for `tiny_run`; the crash test's `jaxplan run` children then load them
 # from the session's compilation cache).  Every other module is its own unit, as usual.
 SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
-                 ("test_cli", "test_crash", "test_examples", "test_planner")}
+                 ("test_cli", "test_crash", "test_examples", "test_planner",
+                  "test_world_metrics")}
 
 
 def pytest_xdist_make_scheduler(config, log):

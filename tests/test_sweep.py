@@ -221,6 +221,12 @@ def test_sweep_writes_rows_figures_and_counts_one_compilation(uninterrupted):
         assert x["success"] in ("0", "1")
         assert float(x["min_separation_ratio"]) > 0
         assert x["robots"] == "3" and x["replans"] == "24" and x["error"] == ""
+        # the world's columns (the default world: the ground, no obstacles); the planner
+        # does not keep to the ground here, so only their agreement is checked
+        assert x["obstacle_collisions"] == "0" and x["min_obstacle_clearance_m"] == ""
+        below = float(x["min_workspace_clearance_m"]) < 0
+        assert (int(x["workspace_violations"]) > 0) == below
+        assert not (below and x["success"] == "1")
     for name in ("success_rate.png", "min_separation.png", "makespan.png"):
         assert (out / "figures" / name).stat().st_size > 0
     assert (out / "config.toml").exists()
