@@ -154,7 +154,9 @@ class PlanState(NamedTuple):
     plan: Trajectory (M,), each starting at the time of the last replan.  has_plan: (M,).
     multipliers, penalty: augmented-Lagrangian warm start.  neighbors: (M, Mo) int32, the
     robot in each other-robot slot of the NLPs (with ``max_neighbors``; -1: none), so
-    that multipliers follow their robot when the selection changes.
+    that multipliers follow their robot when the selection changes.  retry: (M,) bool,
+    the robot's last solve was not accepted: its next solve starts from the cold guesses
+    (:func:`solve_fleet`).
     """
 
     plan: Trajectory
@@ -162,6 +164,7 @@ class PlanState(NamedTuple):
     multipliers: Multipliers
     penalty: jax.Array
     neighbors: jax.Array
+    retry: jax.Array
 
 
 class ReplanInfo(NamedTuple):
@@ -259,7 +262,8 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
                                                     a, goal_p, goal_v, rest, structure)
     sol = solve_fleet(fp, ps, params, mult_prev, structure)
     plan, fallback, new_mult, new_pen = choose_plans(fp, ps, params, sol, p, v, a, structure)
-    new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32))
+    new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32),
+                       (fallback != ACCEPTED) & fp.robot_mask)
     info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
                       sol.ineq_violation, fallback.astype(jnp.int32),
                       goal_moved & fp.robot_mask)
@@ -341,8 +345,15 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, flo
 def solve_fleet(fp: FleetParams, ps: PlanState, params: NLPParams, mult_prev,
                 structure: PlannerStructure):
     """The robots' NLPs solved from warm starts (the previous plans), cold guesses only
-    where a robot has no usable previous plan, in a pool of lanes (the Solution, batch
-    (M,))."""
+    where a robot has no usable previous plan or its last solve was not accepted
+    (``ps.retry``), in a pool of lanes (the Solution, batch (M,)).
+
+    The retry: a warm start is the previous plan, and a robot whose plan was pressed
+    against an obstacle straight between it and its goal (it held still, the line to the
+    goal through the cylinder's axis) was warm-started from that hold replan after
+    replan: every solve INFEASIBLE, the robot stopped for good (pillars, 2 of 20
+    seeds).  The cold guesses include swerves (:func:`jaxplan.solve.initial_guess`),
+    which go round."""
     M = params.radius.shape[0]
     nlp = structure.nlp
     # warm starts; cold guesses (20 objective and 5 merit values each) only when some robot
@@ -350,7 +361,7 @@ def solve_fleet(fp: FleetParams, ps: PlanState, params: NLPParams, mult_prev,
     nan_x = jnp.full((nlp.n_x,), jnp.nan)
     x_warm = jax.vmap(lambda prev, pr: solve.warm_start(prev, fp.dt, pr, nlp, nan_x))(
         ps.plan, params)
-    need_cold = ~ps.has_plan | ~jnp.all(jnp.isfinite(x_warm), axis=-1)
+    need_cold = ~ps.has_plan | ps.retry | ~jnp.all(jnp.isfinite(x_warm), axis=-1)
     x_cold = jax.lax.cond(
         jnp.any(need_cold), lambda: jax.vmap(lambda pr: solve.initial_guess(pr, nlp))(params),
         lambda: jnp.zeros((M, nlp.n_x)))
@@ -525,7 +536,7 @@ def initial_plan_state(p, structure: PlannerStructure, n_others: int) -> PlanSta
     mult = solve.zero_multipliers(dummy, nlp)
     mult = jax.tree.map(lambda m: jnp.zeros((M,) + m.shape), mult)
     return PlanState(plan, jnp.zeros((M,), bool), mult, jnp.zeros((M,)),
-                     jnp.full((M, Mo), -1, jnp.int32))
+                     jnp.full((M, Mo), -1, jnp.int32), jnp.zeros((M,), bool))
 
 
 def remap_slots(lam, old_idx, new_idx):

@@ -151,39 +151,68 @@ def test_static_rows_structured_derivatives_match_autodiff(st, rest):
         pos = np.asarray(traj.evaluate(T * s[:st.n_collision_samples]))
         rows = p.static
         sd = signed_distance(*(np.asarray(a) for a in rows[:4]), pos)
-        want = np.where(np.asarray(rows.mask), 2 * float(p.radius) * (sd - float(p.radius)), 1.0)
+        r = float(p.radius)
+        # a row the start already lacks clearance to allows that much (static_allowance)
+        sd0 = signed_distance(*(np.asarray(a) for a in rows[:4]), np.asarray(p.p0)[None])[0]
+        want = np.where(np.asarray(rows.mask), 2 * r * (sd - r - np.minimum(sd0 - r, 0.0)), 1.0)
         np.testing.assert_allclose(np.asarray(c.static)[:st.n_collision_samples], want,
                                    atol=1e-9)
+
+
+_ST = NLPStructure(collision="barrier+constraint", segments=2, n_static=2)
+_PILLAR = World.default(3).with_obstacles([dict(kind="cylinder", center=[3.0, 0.0, 1.5],
+                                               radius=0.4, half_height=1.5)])
+
+
+@jax.jit
+def _solve_one(P):
+    return solve.solve(P, solve.initial_guess(P, _ST), _ST)
+
+
+def _one_robot(p0, goal, r=0.3):
+    N = 3
+    rows = StaticRows(*(jnp.asarray(a) for a in static_rows(_PILLAR)))
+    z = jnp.zeros(N)
+    others = Trajectory.hold(jnp.full((1, N), 100.0))
+    return NLPParams(jnp.asarray(p0, float), z, z, jnp.asarray(goal, float), z, z,
+                     jnp.asarray(True), others, jnp.ones((1,)), jnp.zeros((1,), bool),
+                     jnp.asarray(r), weights(), limits(), jnp.asarray(0.1), rows)
+
+
+def _dense_clearance(sol, r=0.3):
+    t = np.linspace(0.0, float(sol.traj.duration), 4001)
+    pos = np.asarray(sol.traj.evaluate(jnp.asarray(t)))
+    w = _PILLAR
+    return pos, signed_distance(w.kind, w.center, w.half, w.radius, pos)[:, 0] - r
 
 
 def test_a_robot_goes_round_an_obstacle_on_its_straight_line():
     """One robot, rest to rest, a cylinder centred on its straight line (and the floor):
     the solve converges and its plan keeps clear of both by dense samples (to 1 cm: the
     constraints are sampled), where the straight line would pass through the axis."""
-    st = NLPStructure(collision="barrier+constraint", segments=2, n_static=2)
-    N = 3
-    w = World.default(3).with_obstacles([dict(kind="cylinder", center=[3.0, 0.0, 1.5],
-                                              radius=0.4, half_height=1.5)])
-    rows = StaticRows(*(jnp.asarray(a) for a in static_rows(w)))
-    z = jnp.zeros(N)
-    others = Trajectory.hold(jnp.full((1, N), 100.0))
-    one = jnp.asarray(1.0)
-    P = NLPParams(jnp.asarray([0.0, 0.0, 1.0]), z, z, jnp.asarray([6.0, 0.0, 1.0]), z, z,
-                  jnp.asarray(True), others, jnp.ones((1,)), jnp.zeros((1,), bool),
-                  jnp.asarray(0.3), weights(), limits(), 0.1 * one, rows)
-
-    @jax.jit
-    def run(P):
-        return solve.solve(P, solve.initial_guess(P, st), st)
-
-    sol = jax.device_get(run(P))
+    sol = jax.device_get(_solve_one(_one_robot([0.0, 0.0, 1.0], [6.0, 0.0, 1.0])))
     assert int(sol.status) == solve.CONVERGED
-    t = np.linspace(0.0, float(sol.traj.duration), 4001)
-    pos = np.asarray(sol.traj.evaluate(jnp.asarray(t)))
-    sd = signed_distance(w.kind, w.center, w.half, w.radius, pos)[:, 0]
-    assert np.min(sd) - 0.3 > -0.01
+    pos, clear = _dense_clearance(sol)
+    assert np.min(clear) > -0.01
     assert np.min(pos[:, 2]) - 0.3 > -0.01
     assert np.allclose(pos[-1], [6.0, 0.0, 1.0], atol=1e-6)
+
+
+def test_a_robot_that_starts_inside_its_planning_radius_plans_out():
+    """A start 3 cm inside the planning radius of the cylinder (outside its body): the
+    constraints allow what the start lacks (static_allowance), so the solve converges,
+    never comes closer than the start, and reaches the goal behind the cylinder."""
+    r = 0.3
+    start = [3.0 - 0.4 - r + 0.03, 0.0, 1.0]  # sd - r = -0.03
+    P = _one_robot(start, [6.0, 0.5, 1.0], r)
+    w = _PILLAR
+    c0 = signed_distance(w.kind, w.center, w.half, w.radius, np.asarray([start]))[0, 0] - r
+    assert -0.05 < c0 < 0.0
+    sol = jax.device_get(_solve_one(P))
+    assert int(sol.status) == solve.CONVERGED
+    pos, clear = _dense_clearance(sol, r)
+    assert np.min(clear) > c0 - 0.01
+    assert np.allclose(pos[-1], [6.0, 0.5, 1.0], atol=1e-6)
 
 
 # ---------------------------------------------------------------------- config

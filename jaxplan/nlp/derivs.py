@@ -26,6 +26,7 @@ from jaxplan.nlp.terms import (
     needs_col_features,
     paper_collision,
     sexp,
+    static_allowance,
     static_gap,
     static_local,
 )
@@ -412,6 +413,7 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     r = params.radius
     lam = mult.static if mult is not None else None
     cons = structure.collision_constraints and lam is not None
+    allow = static_allowance(params)
 
     def bar(pk, wk):
         if not structure.static_barrier:
@@ -422,7 +424,7 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     def alt(pk, lk, ok):
         if not cons:
             return jnp.zeros((), p.dtype)
-        g = 2.0 * r * static_gap(pk, params_s)
+        g = 2.0 * r * (static_gap(pk, params_s) - allow)
         return jnp.sum(jnp.where(st.mask & ok, al_term(g, lk, mu), 0.0))
 
     bv, bg, bH = jax.vmap(lambda pk, wk: _value_grad_hessian(bar, pk, wk))(p, w)
@@ -436,7 +438,7 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     g, H = _chain(z, T, jets, G[None], Hgg[None], bg.T[None], bv, jnp.zeros_like(bv))
     gs = jnp.ones((structure.n_col, structure.n_static), z.dtype)
     if with_g and structure.collision_constraints:
-        gap = jax.vmap(lambda pk: static_gap(pk, params))(p)
+        gap = jax.vmap(lambda pk: static_gap(pk, params))(p) - allow
         gs = jnp.where(st.mask[None, :] & on[:, None], 2.0 * r * gap, 1.0)
     return v, g, H, gs
 

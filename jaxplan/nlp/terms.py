@@ -166,10 +166,21 @@ def static_gap(p, params):
     return signed_distance(st.kind, st.center, st.half, st.radius, p, xp=jnp) - params.radius
 
 
+def static_allowance(params):
+    """How far (m, <= 0) each static row's constraint lets the robot stay inside its
+    planning radius: min(sd(p0) - r, 0), what its start already lacks.  A robot that
+    drifted inside the planning radius between collision samples (the safety margin is
+    for that) can then plan out: without it the first samples' constraints, a few
+    milliseconds after the start, were unsatisfiable, every solve INFEASIBLE, and the
+    robot held still beside the obstacle for good (pillars, 2 of 20 seeds)."""
+    return jnp.minimum(static_gap(params.p0, params), 0.0)
+
+
 def static_local(y, w, lam, on, params, structure, mu):
     """Static-row terms at one collision row: y = (p (N), T); barrier q_obs T w
-    sum exp(-k_p (sd - r)); AL terms of g = 2 r (sd - r) >= 0 (m^2, as d^2 - rho^2 is near
-    its boundary) where the row's constraint is ``on``."""
+    sum exp(-k_p (sd - r)); AL terms of g = 2 r (sd - r - a) >= 0 (m^2, as d^2 - rho^2 is
+    near its boundary; a = :func:`static_allowance`) where the row's constraint is
+    ``on``."""
     N = structure.n_dim
     p, T = y[:N], y[-1]
     gap = static_gap(p, params)
@@ -179,16 +190,16 @@ def static_local(y, w, lam, on, params, structure, mu):
     if structure.static_barrier:
         val = val + wt.q_obs * T * w * jnp.sum(jnp.where(mask, jnp.exp(-wt.k_p * gap), 0.0))
     if structure.collision_constraints and lam is not None:
-        g = 2.0 * params.radius * gap
+        g = 2.0 * params.radius * (gap - static_allowance(params))
         val = val + jnp.sum(jnp.where(mask & on, al_term(g, lam, mu), 0.0))
     return val
 
 
 def static_constraints(yc, on, params, structure):
     """g (n_col, R) of the static rows at the collision rows' positions yc (n_col, >= N):
-    2 r (sd - r), +1 where masked or the row is off."""
+    2 r (sd - r - a) (a: :func:`static_allowance`), +1 where masked or the row is off."""
     N = structure.n_dim
-    gap = jax.vmap(lambda y: static_gap(y[:N], params))(yc)
+    gap = jax.vmap(lambda y: static_gap(y[:N], params))(yc) - static_allowance(params)
     return jnp.where(params.static.mask[None, :] & on[:, None], 2.0 * params.radius * gap, 1.0)
 
 
