@@ -22,7 +22,8 @@ Batches.  The grid is cut into batches of ``batch_size`` runs (local engine: def
 :data:`DEFAULT_BATCH` on an accelerator, :data:`DEFAULT_BATCH_CPU` per CPU device on a
 CPU; Ray engine: :data:`DEFAULT_BATCH_CPU` per task; or the environment variable
 ``JAXPLAN_SWEEP_BATCH``), one batch per shape group: scenarios of different robot
-counts share one shape (smaller fleets padded with masked robots), scenarios that
+counts share one shape (smaller fleets padded with masked robots to the largest of the
+whole grid, so that resuming, a shard and every engine pad alike), scenarios that
 differ in the number of waypoints or of spatial dimensions form separate groups.  One
 batch is one call of one compiled program (:class:`jaxplan.sweep_batch.BatchRunner`),
 compiled once per shape group and process; compilations are counted from JAX's own
@@ -290,18 +291,23 @@ class _Progress:
             self.bar.close()
 
 
-def _batches(todo: list[SweepPoint], built, batch: int) -> list[tuple[tuple, int]]:
-    """The points cut into batches of at most ``batch``, each of one shape group
-    (dimensions, waypoints), with the group's robot count: [(points, m_pad)]."""
+def _batches(todo: list[SweepPoint], grid: list[SweepPoint], built,
+             batch: int) -> list[tuple[tuple, int]]:
+    """The points to run cut into batches of at most ``batch``, each of one shape group
+    (dimensions, waypoints), with the robot count of that group over the whole grid (so
+    that a resumed sweep, a shard and every engine pad a fleet alike): [(points, m_pad)]."""
+    def shape(p):
+        sc = built[(p.scenario, p.seed)]
+        return sc.dim, sc.num_waypoints
+
+    m_pad: dict[tuple[int, int], int] = {}
+    for p in grid:
+        m_pad[shape(p)] = max(m_pad.get(shape(p), 0), built[(p.scenario, p.seed)].num_robots)
     groups: dict[tuple[int, int], list[SweepPoint]] = {}
     for p in todo:
-        sc = built[(p.scenario, p.seed)]
-        groups.setdefault((sc.dim, sc.num_waypoints), []).append(p)
-    out = []
-    for pts in groups.values():
-        m_pad = max(built[(p.scenario, p.seed)].num_robots for p in pts)
-        out += [(tuple(pts[i:i + batch]), m_pad) for i in range(0, len(pts), batch)]
-    return out
+        groups.setdefault(shape(p), []).append(p)
+    return [(tuple(pts[i:i + batch]), m_pad[key])
+            for key, pts in groups.items() for i in range(0, len(pts), batch)]
 
 
 def _run_local(config: Config, batches, built, batch: int, write: _Writer, bar: _Progress,
@@ -409,9 +415,8 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
     csv_path = out / (shard_csv_name(*shard) if shard else "sweep.csv")
     _guard_config(out, config)
     done = _resume_csv(csv_path, say)
-    points = sweep_points(config)
-    if shard is not None:
-        points = points[shard[0]::shard[1]]
+    grid = sweep_points(config)
+    points = grid if shard is None else grid[shard[0]::shard[1]]
     todo = [p for p in points if p.key not in done]
     skipped = len(points) - len(todo)
     batch = min(_batch_size(batch_size, engine), max(1, len(todo)))
@@ -422,8 +427,8 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
         part = f" (shard {shard[0]}/{shard[1]})" if shard else ""
         say(f"sweep {config.name}{part}: {len(points)} runs ({skipped} already in {csv_path}), "
             f"{len(todo)} to go in batches of {batch}")
-        built = build_scenarios(config, todo)
-        batches = _batches(todo, built, batch)
+        built = build_scenarios(config, grid)  # (scenario, seed) pairs: few, cheap
+        batches = _batches(todo, grid, built, batch)
         write = _Writer(csv_path, done)
         bar = _Progress(progress, len(points), config.name, skipped)
         try:
