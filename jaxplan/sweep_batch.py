@@ -15,9 +15,9 @@ duplicates are dropped), so every batch of a shape has the same shape.  Fleets s
 than ``m_pad`` robots are padded with masked robots (``FleetParams.robot_mask``) parked
 far away, which the planner never plans for and no robot sees.  On a CPU with several
 devices a batch whose size is a multiple of their number is split over them, each
-device running its own runs side by side (:func:`jaxplan.solve.shard_lanes`).  A
-:class:`BatchRunner` compiles the program once per shape (robots, dimensions,
-waypoints, batch) and keeps it; compilations are counted from JAX's own compile events
+device running its own runs side by side (:func:`jaxplan.solve.shard_lanes`).  The
+program is compiled once per process, structure and shape (robots, dimensions,
+waypoints, batch) and kept; compilations are counted from JAX's own compile events
 (``jax.monitoring``, :class:`CompileCounter`).
 
 Rows: :data:`jaxplan.sweep_csv.COLUMNS`, from the run's metrics (:func:`csv_row`).
@@ -29,6 +29,7 @@ import dataclasses
 import math
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -340,10 +341,17 @@ class Tally:
     cache_hits: int = 0  # of the compilations, loads from the persistent cache
 
 
+# this process's compiled batch programs, the most recently used last: a sweep (or a
+# shard, or a Ray worker's next task) of the same structure and shapes reuses one
+_PROGRAMS: OrderedDict = OrderedDict()
+MAX_PROGRAMS = 8
+
+
 class BatchRunner:
     """Runs batches of one config's grid points in this process; the batch program is
-    compiled once per shape and kept (``tally``: what it cost so far; ``say``: where
-    the compiling messages go)."""
+    compiled once per shape and process, and kept (the last :data:`MAX_PROGRAMS`;
+    ``tally``: what this runner cost so far, a reused program no compilation; ``say``:
+    where the compiling messages go)."""
 
     def __init__(self, config: Config, say: Callable[[str], None] = lambda s: None):
         self.config = config
@@ -359,6 +367,14 @@ class BatchRunner:
         if structure is None:
             structure = self._structures[n_dim] = structure_for(self.config, n_dim)
         sh = cpu_shards(batch)
+        leaves, tree = jax.tree.flatten((fpb, taskb))
+        pkey = (structure, sh, tree, tuple((np.shape(x), np.asarray(x).dtype.str)
+                                           for x in leaves))  # what jit keys a program on
+        compiled = _PROGRAMS.get(pkey)
+        if compiled is not None:
+            _PROGRAMS.move_to_end(pkey)
+            self.say("the planner for this shape is compiled already (in this process)")
+            return compiled
         self.say(f"compiling the planner: batch of {batch} runs x {m_pad} robots "
                  f"x {structure.steps} replans ({n_dim}-D, {n_wp} waypoints"
                  + (f"; {sh} CPU devices, {batch // sh} run(s) each)" if sh > 1 else ")"))
@@ -370,6 +386,9 @@ class BatchRunner:
         hits = CompileCounter.get("cache_hits") - h0
         self.tally.cache_hits += hits
         self.say(f"compiled in {seconds:.1f} s" + (" (from the compilation cache)" if hits else ""))
+        _PROGRAMS[pkey] = compiled
+        while len(_PROGRAMS) > MAX_PROGRAMS:
+            _PROGRAMS.popitem(last=False)
         return compiled
 
     def rows(self, points, built: dict, m_pad: int, batch: int,

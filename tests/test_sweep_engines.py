@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from jaxplan.config import ConfigError, parse_config
-from tests._proc import child_env, jaxplan_cmd
+from tests._proc import ROOT, jaxplan_cmd
 from tests.test_sweep import SWEEP_TOML
 
 FLOAT_COLUMNS = ("min_separation_ratio", "makespan_s", "mean_time_to_goal_s", "reached_frac",
@@ -155,50 +155,75 @@ def test_appends_take_the_lock_and_never_repeat_a_key(tmp_path):
     assert not t.is_alive() and path.read_text().endswith("x\n")
 
 
+def test_shards_starting_together_share_config_toml(tmp_path):
+    """Shards of one sweep check and write the directory's config.toml at the same time
+    (here threads; _guard_config takes the file's lock)."""
+    from jaxplan.sweep import _guard_config
+
+    cfg, errors = _config(), []
+
+    def guard():
+        try:
+            for _ in range(10):
+                _guard_config(tmp_path, cfg)
+        except Exception as e:  # any failure is the finding
+            errors.append(e)
+
+    threads = [threading.Thread(target=guard) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert not errors, errors[0]
+    assert parse_config(tomllib.loads((tmp_path / "config.toml").read_text())) == cfg
+
+
 # ----------------------------------------------------------------------------- end to end
 
 
 @pytest.fixture(scope="module")
 def engines_env(tmp_path_factory):
-    """The tiny sweep, one run per batch on one CPU device in every process (a Ray task
-    has one), so that every engine runs the same program: compiled once, by the local
-    run, then loaded from the module's compilation cache."""
+    """The tiny sweep with one run per batch on one CPU device, as a Ray task runs it,
+    so that every engine runs the same program: compiled once, in this process (the
+    local run; the shards reuse it), and loaded by the Ray workers from the test
+    session's compilation cache (tests/conftest.py)."""
     d = tmp_path_factory.mktemp("engines")
     cfg = d / "tiny_sweep.toml"
     cfg.write_text(SWEEP_TOML)
-    env = child_env(d / "jax_cache", JAXPLAN_SWEEP_BATCH="1", JAXPLAN_CPU_DEVICES="1",
-                    JAXPLAN_RAY_CPUS="2")
+    env = dict(os.environ, JAXPLAN_SWEEP_BATCH="1", JAXPLAN_CPU_DEVICES="1",
+               JAXPLAN_RAY_CPUS="2")
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     return d, cfg, env
+
+
+def _sweep(cfg: Path, out: Path, *args: str) -> None:
+    """`jaxplan sweep CFG --out OUT --quiet --batch 1 ARGS`, in this process."""
+    from jaxplan.cli import main
+
+    assert main(["sweep", str(cfg), "--out", str(out), "--quiet", *args]) == 0
 
 
 @pytest.fixture(scope="module")
 def local_rows(engines_env):
-    d, cfg, env = engines_env
-    r = subprocess.run(jaxplan_cmd("sweep", cfg, d / "local"), env=env, cwd=d,
-                       capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0, r.stderr[-3000:]
+    d, cfg, _ = engines_env
+    _sweep(cfg, d / "local", "--batch", "1")
     rows = _read(d / "local" / "sweep.csv")
     assert len(rows) == 8
     return rows
 
 
 def test_two_shards_and_a_merge_give_the_local_rows(engines_env, local_rows):
-    from jaxplan.cli import main
     from jaxplan.sweep import sweep_points
 
-    d, cfg, env = engines_env
+    d, cfg, _ = engines_env
     out = d / "shards"
-    procs = [subprocess.Popen(jaxplan_cmd("sweep", cfg, out) + ["--shard", f"{i}/2"], env=env,
-                              cwd=d, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for i in range(2)]  # side by side, as a job array runs them
-    for p in procs:
-        _, err = p.communicate(timeout=900)
-        assert p.returncode == 0, err[-3000:]
+    for i in range(2):
+        _sweep(cfg, out, "--batch", "1", "--shard", f"{i}/2")
     keys = [p.key for p in sweep_points(_config())]
     for i in range(2):
         assert sorted(_read(out / f"sweep.shard-{i}-of-2.csv")) == sorted(keys[i::2])
     assert not (out / "sweep.csv").exists() and not (out / "figures").exists()
-    assert main(["sweep", str(cfg), "--out", str(out), "--merge"]) == 0
+    _sweep(cfg, out, "--merge")
     _assert_same_rows(_read(out / "sweep.csv"), local_rows)
     assert (out / "figures" / "success_rate.png").stat().st_size > 0
 
