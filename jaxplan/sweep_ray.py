@@ -107,8 +107,11 @@ def _connect(ray, address: str | None, say) -> bool:
                      object_store_memory=LOCAL_OBJECT_STORE_BYTES, **kw)
     except (ConnectionError, RuntimeError, ValueError) as e:
         where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+        hint = ("; a cluster with token authentication also needs its ~/.ray/auth_token "
+                "and RAY_AUTH_MODE=token here (docs/SWEEPS.md)" if address else "")
         raise SweepError(f"--engine ray: cannot start or join {where}: "
-                         f"{str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+                         f"{str(e).splitlines()[0] if str(e) else type(e).__name__}{hint}"
+                         ) from None
     return True
 
 
