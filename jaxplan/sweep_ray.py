@@ -15,8 +15,8 @@ A task (:func:`jaxplan_sweep_batch`) runs in a Ray worker process with one CPU a
 JAX CPU device (``JAXPLAN_CPU_DEVICES=1`` in the task's runtime environment): it reads
 the resolved config (its config.toml text), builds its points' scenarios and returns
 their sweep.csv rows (:class:`jaxplan.sweep_batch.BatchRunner`, the same code the
-local engine runs).  A worker keeps its compiled batch program for the next task of the
-same config, so each worker compiles once per shape; workers use the driver's
+local engine runs).  A worker keeps its compiled batch programs for its next tasks, so
+each worker compiles once per shape; workers use the driver's
 persistent compilation cache directory (JAX's settings passed as environment
 variables), which they share where they share a file system.
 
