@@ -3,6 +3,7 @@
 
     jaxplan run CONFIG.toml [--out DIR]        one experiment -> a run directory
     jaxplan sweep CONFIG.toml [--out DIR]      a grid of weights x scenarios x seeds
+        [--engine local|ray [--address ADDR]] [--shard I/N | --merge]
     jaxplan plot RUN_DIR                        (re)draw a run's figures
     jaxplan bench [solver|predict|sim|all] [--json FILE] [--markdown FILE]
     jaxplan scenarios                           list built-in scenarios
@@ -60,6 +61,19 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--batch", type=int, default=None,
                    help="runs per batched computation (default: one per CPU device on a CPU, "
                         "split over the devices; 27 on a GPU)")
+    s.add_argument("--engine", choices=("local", "ray"), default=None,
+                   help="where the batches run: this process (local) or Ray tasks (ray; "
+                        "needs jaxplan[ray]); default: [sweep] engine, else local")
+    s.add_argument("--address", default=None, metavar="ADDR",
+                   help="with --engine ray: the Ray cluster to join (e.g. auto, HOST:6379); "
+                        "default: a local Ray instance, one worker per core")
+    part = s.add_mutually_exclusive_group()
+    part.add_argument("--shard", type=_shard, default=None, metavar="I/N",
+                      help="run only the grid points with index %% N == I, into "
+                           "sweep.shard-I-of-N.csv (0 <= I < N)")
+    part.add_argument("--merge", action="store_true",
+                      help="merge the sweep directory's shard files into sweep.csv and "
+                           "draw the figures (runs nothing)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--no-cache", action="store_true",
                    help="do not use the compilation cache (see JAXPLAN_CACHE_DIR)")
@@ -73,6 +87,16 @@ def _parser() -> argparse.ArgumentParser:
                    help="write the figures as a markdown page (docs/BENCHMARKS.md)")
     sub.add_parser("scenarios", help="list built-in scenarios")
     return p
+
+
+def _shard(text: str) -> tuple[int, int]:
+    """--shard I/N -> (I, N); argparse reports a bad one (exit status 2)."""
+    from jaxplan.sweep import parse_shard
+
+    try:
+        return parse_shard(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def compile_cache_dir() -> Path | None:
@@ -249,14 +273,24 @@ def _cmd_scenarios(args) -> int:
 
 def _cmd_sweep(args) -> int:
     cfg = _load(args.config)
-    from jaxplan.sweep import SweepError, run_sweep
+    from jaxplan.sweep import SweepError, merge_shards, run_sweep
 
     if args.batch is not None and args.batch < 1:
         raise _Fail(f"--batch must be >= 1, got {args.batch}")
+    engine = args.engine or cfg.sweep.engine
+    if args.address is not None and engine != "ray":
+        raise _Fail(f"--address {args.address}: needs --engine ray (or [sweep] engine = "
+                    '"ray")')
+    if args.merge and (args.engine or args.address or args.batch):
+        raise _Fail("--merge runs nothing: it takes no --engine, --address or --batch")
     out = args.out or Path("sweeps") / cfg.name
-    _use_compile_cache(args.no_cache)
     try:
-        run_sweep(cfg, out, progress=not args.quiet, batch_size=args.batch)
+        if args.merge:
+            merge_shards(cfg, out)
+            return 0
+        _use_compile_cache(args.no_cache)
+        run_sweep(cfg, out, progress=not args.quiet, batch_size=args.batch, engine=engine,
+                  address=args.address, shard=args.shard)
     except SweepError as e:
         raise _Fail(str(e)) from None
     return 0

@@ -2,7 +2,8 @@
 
     atomic_write(path, write, *, suffix=".tmp") -> path     write(tmp_path) fills a temporary
     atomic_write_bytes(path, data), atomic_write_text(path, text)
-    append_lines(path, text)                                whole lines, one write, fsync
+    append_lines(path, text)                  whole lines, one write, fsync, under file_lock
+    file_lock(path) -> filelock.FileLock      the lock of ``path`` (``.<name>.lock`` beside it)
 
 An atomic write fills a temporary file in the same folder (``.<name>.<random><suffix>``),
 flushes it to disk and renames it over ``path``, so a crash (even SIGKILL) never leaves a
@@ -11,6 +12,11 @@ same name are removed first.  The file gets the usual permissions (0666 minus th
 a bare temporary file's are 0600).  Used for the run directory (:mod:`jaxplan.results`),
 the figures (:mod:`jaxplan.plots`, :mod:`jaxplan.media`) and sweep.csv / config.toml of
 a sweep directory (:mod:`jaxplan.sweep`); docs/DESIGN.md "A run directory".
+
+Appends take the file's lock (:func:`file_lock`, the ``filelock`` library: an ``flock``
+on ``.<name>.lock`` in the same folder, which stays there), so that processes appending
+to one file, on one machine or over a shared file system that supports locks, never
+interleave their lines; a reader that must not see a write in progress takes it too.
 """
 
 from __future__ import annotations
@@ -22,7 +28,10 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "append_lines"]
+from filelock import FileLock
+
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "append_lines",
+           "file_lock"]
 
 
 def _umask() -> int:
@@ -76,17 +85,26 @@ def atomic_write_text(path, text: str) -> Path:
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def file_lock(path) -> FileLock:
+    """The inter-process lock of ``path``: a :class:`filelock.FileLock` on
+    ``.<name>.lock`` beside it (one object per path in a process, re-entrant in a thread:
+    ``with file_lock(p): append_lines(p, ...)`` is fine).  Blocks until it is free."""
+    path = Path(path)
+    return FileLock(path.parent / f".{path.name}.lock", is_singleton=True)
+
+
 def append_lines(path, text: str) -> None:
     """Append complete lines to ``path`` (created 0644 minus the umask) in one write,
-    then fsync: a kill leaves at most a partial trailing line, which a reader drops
-    (:func:`jaxplan.sweep_analysis.read_sweep_csv`)."""
+    then fsync, holding :func:`file_lock`: a kill leaves at most a partial trailing line,
+    which a reader drops (:func:`jaxplan.sweep_csv.read_sweep_csv`)."""
     data = text.encode("utf-8")
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        view = memoryview(data)
-        while view:
-            n = os.write(fd, view)
-            view = view[n:]
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    with file_lock(path):
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            view = memoryview(data)
+            while view:
+                n = os.write(fd, view)
+                view = view[n:]
+            os.fsync(fd)
+        finally:
+            os.close(fd)

@@ -113,7 +113,7 @@ def test_pad_robots_parks_masked_robots_far_away():
 
     from jaxplan.config import build_scenario
     from jaxplan.experiment import fleet_params, task_of
-    from jaxplan.sweep import _pad_robots
+    from jaxplan.sweep_batch import pad_robots as _pad_robots
 
     cfg = _config()
     sc = build_scenario(cfg)

@@ -16,7 +16,8 @@
                and the generator's keys (its parameter model in
                jaxplan/scenarios/generators.py or worlds.py, e.g. RandomBoxParams)
     [sweep]    q_obs, q_lim (lists or {log_min, log_max, num}, base-10 exponents),
-               seeds (list or {start, num}), scenarios (registry names)
+               seeds (list or {start, num}), scenarios (registry names),
+               engine = "local" | "ray" (where the batches run)
     [faults]   enabled, message_loss, latency_s, noise_sigma_m, frozen_robot, frozen_at_s,
                frozen_mode (jaxplan/faults.py; off by default)
     [workspace] min, max              (per axis, inf = unbounded; 3-D default: z >= 0)
@@ -73,6 +74,7 @@ from jaxplan.config.schema import (
     DEFAULT_SAFETY_MARGIN_M,
     DEFAULT_SEGMENTS,
     DEFAULT_SOLVER_POOL,
+    DEFAULT_SWEEP_ENGINE,
     DEFAULT_TOL,
     FAULT_KEYS,
     GENERATOR_KEYS,
@@ -84,6 +86,7 @@ from jaxplan.config.schema import (
     MAX_SEGMENTS,
     MAX_SWEEP_POINTS,
     ROBOT_KEYS,
+    SWEEP_ENGINES,
     TOP_KEYS,
     Config,
     ConfigError,
@@ -123,6 +126,7 @@ __all__ = [
     "DEFAULT_SAFETY_MARGIN_M",
     "DEFAULT_SEGMENTS",
     "DEFAULT_SOLVER_POOL",
+    "DEFAULT_SWEEP_ENGINE",
     "DEFAULT_TOL",
     "FAULT_KEYS",
     "FaultsConfig",
@@ -141,6 +145,7 @@ __all__ = [
     "ScenarioConfig",
     "SimConfig",
     "SweepConfig",
+    "SWEEP_ENGINES",
     "TOP_KEYS",
     "build_scenario",
     "config_to_dict",

@@ -30,12 +30,14 @@ from jaxplan.config.resolve import (
     assemble_scenario,
 )
 from jaxplan.config.schema import (
+    DEFAULT_SWEEP_ENGINE,
     MAX_SEED,
     MAX_SWEEP_POINTS,
     OBSTACLE_KEYS,
     OBSTACLE_KINDS,
     ROBOT_KEYS,
     SECTION_CONFIG,
+    SWEEP_ENGINES,
     TOP_KEYS,
     Config,
     ConfigError,
@@ -299,6 +301,7 @@ def _scenario_names(v: Any) -> tuple:
 _Weights = Annotated[tuple[number(ge=0.0), ...],
                      _list_of("numbers", "{log_min, log_max, num}", "values")]
 _Seeds = Annotated[tuple[Seed, ...], _list_of("integers", "{start, num}", "seeds")]
+_SweepEngine = string(one_of(SWEEP_ENGINES))
 _ScenarioNames = Annotated[tuple[ScenarioKind, ...], BeforeValidator(_scenario_names)]
 
 
@@ -331,7 +334,8 @@ def _parse_sweep(raw: Any, planner: PlannerConfig, seed: int) -> SweepConfig:
         q_obs=_parse_weights(t.get("q_obs"), "sweep.q_obs", planner.q_obs),
         q_lim=_parse_weights(t.get("q_lim"), "sweep.q_lim", planner.q_lim),
         seeds=_parse_seeds(t.get("seeds"), seed),
-        scenarios=validate_value(_ScenarioNames, t.get("scenarios", []), "sweep.scenarios"))
+        scenarios=validate_value(_ScenarioNames, t.get("scenarios", []), "sweep.scenarios"),
+        engine=validate_value(_SweepEngine, t.get("engine", DEFAULT_SWEEP_ENGINE), "sweep.engine"))
 
 
 # ---------------------------------------------------------------------------------------

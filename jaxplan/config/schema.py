@@ -65,6 +65,8 @@ DEFAULT_GOAL_SPEED_TOLERANCE_MPS = 0.1   # residual speed allowed at a rest goal
 
 COLLISION_MODES = PLANNER_COLLISION_MODES  # the NLP's modes but "none" (jaxplan/nlp/types.py)
 BACKENDS = ("ideal", "mjx")
+SWEEP_ENGINES = ("local", "ray")  # where `jaxplan sweep` runs its batches (jaxplan/sweep.py)
+DEFAULT_SWEEP_ENGINE = "local"
 FROZEN_MODES = ("silent", "stale")
 MAX_DEGREE = 15
 MAX_SEGMENTS = 64
@@ -305,12 +307,14 @@ class ScenarioConfig:
 @dataclass(frozen=True)
 class SweepConfig:
     """[sweep], resolved: q_obs, q_lim weight grids; seeds; scenarios (registry names,
-    empty = the config's own fleet).  Defaults: the planner's weights and the seed."""
+    empty = the config's own fleet); engine ("local": this process; "ray": Ray tasks).
+    Defaults: the planner's weights, the seed and the local engine."""
 
     q_obs: tuple[float, ...]
     q_lim: tuple[float, ...]
     seeds: tuple[int, ...]
     scenarios: tuple[str, ...] = ()
+    engine: string(one_of(SWEEP_ENGINES)) = DEFAULT_SWEEP_ENGINE
 
 
 def _plain_name(name: str) -> str:
