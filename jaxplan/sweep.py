@@ -239,6 +239,10 @@ def _csv_row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
         "robots": _csv_cell(int(metrics["robots"])),
         "duration_s": _csv_cell(metrics["duration_s"]),
         "replans": _csv_cell(int(metrics["replans"])),
+        "stalls": _csv_cell(int(metrics.get("stalls", 0))),
+        "stalled_s": _csv_cell(metrics.get("stalled_s")),
+        "parked": _csv_cell(int(metrics.get("parked", 0))),
+        "makespan_over_bound": _csv_cell(metrics.get("makespan_over_bound")),
         "error": error,
     })
     return row
@@ -250,7 +254,7 @@ _FREE_TABLES = ("sweep", "name", "description")
 # keys added later whose default changed what a run does: a config.toml without one was
 # written by a version that behaved as this value (so resuming it under the new default
 # is a different config, not the same one)
-_LEGACY_VALUES = {("planner", "coast_samples"): 0}
+_LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off"}
 
 
 def _guard_config(out: Path, config: Config) -> None:

@@ -39,6 +39,7 @@ COLUMNS = KEY_COLUMNS + (
     "reached_frac", "waypoints_frac", "peak_speed_ratio", "converged_frac", "iterations_median",
     "fallbacks_kept_previous", "fallbacks_braking", "fallbacks_best_effort",
     "fallbacks_goal_occupied", "robots", "duration_s", "replans",
+    "stalls", "stalled_s", "parked", "makespan_over_bound",
     "error",
 )
 ANALYSIS_COLUMNS = ("q_obs", "q_lim", "scenario", "seed", "success", "min_separation_ratio",
