@@ -34,13 +34,14 @@ paper: $(STAMP)
 sweep: $(STAMP)
 	$(VENV)/bin/jaxplan sweep experiments/sweeps/qobs_qlim.toml
 
-# docs/RESULTS.md: the paper scenarios (both backends), collision-mode and fault tables
+# docs/RESULTS.md: the paper scenarios (both backends), collision-mode, fault and stall tables
 # (resumable; about an hour on 2 cores: see experiments/studies.py)
 studies: $(STAMP)
 	$(PY) experiments/studies.py paper --out sweeps/studies
 	$(PY) experiments/studies.py collision --out sweeps/studies
 	$(PY) experiments/studies.py faults --out sweeps/studies
 	$(PY) experiments/studies.py worlds --out sweeps/studies
+	$(PY) experiments/studies.py deadlock --out sweeps/studies
 
 bench: $(STAMP)
 	$(VENV)/bin/jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md

@@ -4,6 +4,7 @@
     python experiments/studies.py collision [--seeds N] [--out DIR] [--batch B] [--fleets F ...]
     python experiments/studies.py faults    [--seeds N] [--out DIR] [--batch B] [--fleets F ...]
     python experiments/studies.py worlds    [--seeds N] [--out DIR] [--batch B] [--only W ...]
+    python experiments/studies.py deadlock  [--seeds N] [--out DIR] [--batch B] [--only CELL ...]
     python experiments/studies.py results   [--out DIR]        (rebuild the page, run nothing)
     make studies                            (paper, collision, faults, worlds into sweeps/studies/)
 
@@ -26,11 +27,19 @@ low_ceiling, random_obstacles with 12 robots and 15 obstacles) at the default pl
 settings: ``--seeds`` seeds each under the ideal backend (a sweep per world), and seed 0
 under both backends through `jaxplan run` (the replan times, and the mjx contacts).
 
-Each (study, setting, fleet) cell of ``collision`` and ``faults`` is one `jaxplan sweep`
-directory under ``--out``, so an interrupted study resumes where it stopped.  Batches of
-one run are the default because on a CPU a vmapped batch runs every lane for as many
-solver iterations as its slowest lane needs (20 antipodal runs: 127 s batched, about
-90 s one after another, 2-core CPU).
+``deadlock``: stalls with and without their resolution (``[planner] deadlock =
+"sidestep" | "off"``, jaxplan/deadlock.py) on the fleets of experiments/deadlock/
+(planar antipodal circles of 4 to 24 ground robots, exactly symmetric and with a 2 deg
+random angular offset; planar random transitions of 10 and 20; 3-D circles that start in
+one horizontal plane), the two benchmark fleets, and the benchmark fleets with robot 0
+frozen at t = 2 s.  ``--seeds N`` caps every cell's seeds (default: 10 per circle, 20
+otherwise).
+
+Each (study, setting, fleet) cell of ``collision``, ``faults`` and ``deadlock`` is one
+`jaxplan sweep` directory under ``--out``, so an interrupted study resumes where it
+stopped.  Batches of one run are the default because on a CPU a vmapped batch runs
+every lane for as many solver iterations as its slowest lane needs (20 antipodal runs:
+127 s batched, about 90 s one after another, 2-core CPU).
 
 Every study prints its table (markdown) and writes it to ``--out/<study>.md``, with
 ``--out/<study>.meta.json`` (the command, the machine, the date) and the cells'
@@ -72,12 +81,32 @@ FAULTS = {
     "one frozen robot": {"enabled": True, "frozen_robot": 0, "frozen_at_s": 2.0,
                          "frozen_mode": "silent"},
 }
+DEADLOCK = ROOT / "deadlock"
+ANGLE_JITTER_DEG = 2.0
+# (cell name, base config, [scenario] overrides, seeds, [faults] or None)
+DEADLOCK_CELLS = [
+    *[(f"planar circle {n}{' +jitter' if j else ''}", DEADLOCK / "circle_planar.toml",
+       {"count": n, "angle_jitter_deg": ANGLE_JITTER_DEG if j else 0.0}, 10, None)
+      for n in (4, 8, 12, 16, 24) for j in (False, True)],
+    ("planar box 10", DEADLOCK / "box_planar.toml", {}, 20, None),
+    ("planar box 20", DEADLOCK / "box_planar.toml",
+     {"count": 20, "box": [[-4.0, -4.0], [4.0, 4.0]]}, 20, None),
+    ("antipodal_10", FLEETS["antipodal_10"], {}, 20, None),
+    ("random_box_20", FLEETS["random_box_20"], {}, 20, None),
+    ("3-D plane circle 8", DEADLOCK / "circle_3d.toml", {"count": 8}, 10, None),
+    ("3-D plane circle 16", DEADLOCK / "circle_3d.toml", {"count": 16}, 10, None),
+    ("antipodal_10, robot 0 frozen", FLEETS["antipodal_10"], {}, 20, FAULTS["one frozen robot"]),
+    ("random_box_20, robot 0 frozen", FLEETS["random_box_20"], {}, 20,
+     FAULTS["one frozen robot"]),
+]
+RESOLUTIONS = ("off", "sidestep")
 WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles")
-STUDIES = ("paper", "collision", "faults", "worlds")
+STUDIES = ("paper", "collision", "faults", "deadlock", "worlds")
 
 # The page: one section per study, in this order.
 TITLES = {"paper": "The paper's four scenarios", "collision": "Collision modes",
-          "faults": "Faults", "worlds": "Worlds with obstacles"}
+          "faults": "Faults", "deadlock": "Stalls and the sidestep",
+          "worlds": "Worlds with obstacles"}
 INTRO = """\
 # Results
 
@@ -101,6 +130,10 @@ DEFAULT_NOTES = {
                  "and goals in a box (30 s runs).",
     "faults": "Each fault of `[faults]` alone, default settings. Success excepts the frozen "
               "robot; a collision with it still counts.",
+    "deadlock": "Each fleet without (`deadlock = \"off\"`: detection only) and with the "
+                "sidestep (the default). Stalls: stall onsets over all runs; stalled: robot-"
+                "seconds stalled; T/bound: makespan over max_i(D_i / v_max + v_max / a_max), "
+                "median and max over the successful runs; peak speed: the largest of any run.",
     "worlds": "Success also requires no robot body inside an obstacle or outside the "
               "workspace (exact from the executed pieces under ideal; every physics step "
               "under mjx). Clearance: distance from a robot's centre to the obstacle's "
@@ -150,7 +183,8 @@ def _today() -> str:
 # ---------------------------------------------------------------------------------------
 
 
-def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults=None) -> dict:
+def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults=None,
+          scenario=None) -> dict:
     import tomllib
 
     from jaxplan.config import parse_config
@@ -159,6 +193,7 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
 
     doc = tomllib.loads(base.read_text())
     doc.setdefault("planner", {}).update(planner or {})
+    doc.setdefault("scenario", {}).update(scenario or {})
     if faults:
         doc["faults"] = dict(faults)
     doc["sweep"] = {"seeds": {"start": 0, "num": seeds}}
@@ -170,11 +205,18 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
     ms = num("makespan_s")
     total = lambda k: int(sum(num(k))) if rows and k in rows[0] else None  # noqa: E731
     low = lambda k: min(num(k), default=None) if rows and k in rows[0] else None  # noqa: E731
+    ratio = num("makespan_over_bound")
     return {
         "obstacle_collisions_total": total("obstacle_collisions"),
         "workspace_violations_total": total("workspace_violations"),
         "min_obstacle_clearance_m": low("min_obstacle_clearance_m"),
         "min_workspace_clearance_m": low("min_workspace_clearance_m"),
+        "stalls": int(sum(num("stalls"))),
+        "stalled_s": sum(num("stalled_s")),
+        "parked": int(sum(num("parked"))),
+        "over_bound_median": statistics.median(ratio) if ratio else None,
+        "over_bound_max": max(ratio) if ratio else None,
+        "peak_speed_ratio_max": max(num("peak_speed_ratio"), default=math.nan),
         "runs": len(rows),
         "success_rate": statistics.fmean(num("success")),
         "collisions_total": int(sum(num("collisions"))),
@@ -216,6 +258,46 @@ def _sweep_study(a) -> tuple[str, dict]:
         lines.append(f"| {shown} | {fleet} | {r['runs']} | {100 * r['success_rate']:.0f}% | "
                      f"{r['runs_with_collisions']} | {r['collisions_total']} | "
                      f"{r['min_separation_ratio']:.3f} | {mk} |")
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return "\n".join(lines), results
+
+
+def _deadlock_study(a) -> tuple[str, dict]:
+    cells = DEADLOCK_CELLS
+    if a.only:
+        names = [c[0] for c in cells]
+        unknown = [k for k in a.only if k not in names]
+        if unknown:
+            raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
+                             f"{', '.join(repr(k) for k in names)}")
+        cells = [c for c in cells if c[0] in a.only]
+    results = {}
+    t0 = time.perf_counter()
+    for res in a.resolutions:  # the resolution first: its cells matter most
+        for name, base, scenario, seeds, faults in cells:
+            n = min(seeds, a.seeds) if a.seeds else seeds
+            if res == "off" and a.off_seeds:
+                n = min(n, a.off_seeds)
+            out = a.out / "deadlock" / f"{_slug(name)}__{res}__{n}seeds"
+            print(f"[{time.perf_counter() - t0:7.0f} s] {name} / {res} -> {out}", flush=True)
+            results[f"{name} | {res}"] = _cell(base, n, out, a.batch, scenario=scenario,
+                                               planner={"deadlock": res}, faults=faults)
+    f = lambda x, fmt="{:.2f}": "n/a" if x is None else fmt.format(x)  # noqa: E731
+    lines = ["| fleet | resolution | runs | success | runs with collisions | min d/rho "
+             "| median makespan (s) | T/bound median / max | stalls | stalled (s) | parked "
+             "| peak speed / v_max |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    order = {c[0]: i for i, c in enumerate(DEADLOCK_CELLS)}
+    keys = sorted(results, key=lambda k: (order[k.split(" | ")[0]], k.split(" | ")[1]))
+    for key in keys:
+        r = results[key]
+        name, res = key.split(" | ")
+        shown = f"**{res}**" if res == "sidestep" else res
+        lines.append(f"| {name} | {shown} | {r['runs']} | {100 * r['success_rate']:.0f}% | "
+                     f"{r['runs_with_collisions']} | {r['min_separation_ratio']:.3f} | "
+                     f"{f(r['makespan_median_s'])} | {f(r['over_bound_median'])} / "
+                     f"{f(r['over_bound_max'])} | {r['stalls']} | {r['stalled_s']:.0f} | "
+                     f"{r['parked']} | {r['peak_speed_ratio_max']:.2f} |")
     print(f"total {time.perf_counter() - t0:.0f} s")
     return "\n".join(lines), results
 
@@ -389,12 +471,19 @@ def main(argv=None) -> int:
     ap.add_argument("study", choices=(*STUDIES, "results"),
                     help="a study to run, or 'results': rebuild --results from the tables "
                          "under --out without running anything")
-    ap.add_argument("--seeds", type=int, default=20, help="seeds per cell (default 20)")
+    ap.add_argument("--seeds", type=int, default=None,
+                    help="seeds per cell (default 20; deadlock: at most this many, default "
+                         "each cell's own)")
     ap.add_argument("--out", type=Path, default=Path("sweeps/studies"),
                     help="where the cells and tables go (default sweeps/studies)")
     ap.add_argument("--batch", type=int, default=None,
                     help="runs per compiled batch (default: jaxplan.sweep's, one per CPU device)")
     ap.add_argument("--fleets", nargs="+", choices=tuple(FLEETS), default=tuple(FLEETS))
+    ap.add_argument("--resolutions", nargs="+", choices=RESOLUTIONS,
+                    default=("sidestep", "off"), help="deadlock: the resolutions to run")
+    ap.add_argument("--off-seeds", type=int, default=None,
+                    help="deadlock: at most this many seeds for the cells without the "
+                         "resolution (the baseline)")
     ap.add_argument("--backends", nargs="+", choices=BACKENDS, default=BACKENDS,
                     help="paper, worlds: the backends to run (default both)")
     ap.add_argument("--only", nargs="+",
@@ -406,7 +495,10 @@ def main(argv=None) -> int:
                     help="do not rewrite the results page after the study")
     a = ap.parse_args(argv)
     if a.study != "results":
-        study = {"paper": _paper_study, "worlds": _worlds_study}.get(a.study, _sweep_study)
+        if a.study in ("collision", "faults", "worlds") and a.seeds is None:
+            a.seeds = 20
+        study = {"paper": _paper_study, "deadlock": _deadlock_study,
+                 "worlds": _worlds_study}.get(a.study, _sweep_study)
         table, aggregates = study(a)
         print(table)
         a.out.mkdir(parents=True, exist_ok=True)

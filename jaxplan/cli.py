@@ -208,6 +208,9 @@ def summary(m: dict, out: Path, cache: str | None = None) -> str:
         f"  fallbacks: kept previous plan {m['fallbacks']['kept_previous']}, "
         f"braking {m['fallbacks']['braking']}, best effort {m['fallbacks']['best_effort']}, "
         f"goal occupied {m['fallbacks'].get('goal_occupied', 0)}",
+        f"  stalls {m.get('stalls', 0)} ({m.get('stalled_s', 0.0):.1f} robot-s stalled, "
+        f"{m.get('sidestep_s', 0.0):.1f} robot-s sidestepping), parked {m.get('parked', 0)}, "
+        f"makespan / bound {f(m.get('makespan_over_bound'), '{:.2f}')}",
         f"  compile {m['compile_s']:.1f} s, run {m['run_s']:.2f} s"
         + (f" (compilation cache: {cache})" if cache else ""),
         f"  results in {out}/ (metrics.json, trajectories.npz, config.toml, figures/)",

@@ -23,6 +23,8 @@ from jaxplan import metrics as mt
 from jaxplan import solve
 from jaxplan import world_metrics as wm
 from jaxplan.config import Config, build_scenario
+from jaxplan.deadlock import default_params as deadlock_params
+from jaxplan.deadlock import stall_summary
 from jaxplan.faults import FaultParams, no_faults
 from jaxplan.nlp import Limits, NLPStructure, Weights
 from jaxplan.planner import (
@@ -112,6 +114,10 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
         t_min=jnp.asarray(T_MIN), prediction_weight=jnp.asarray(pc.k_t / pc.q_dynm),
         accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
         static=_static(scenario, n_static),
+        deadlock=deadlock_params(
+            enabled=pc.deadlock == "sidestep", window=pc.stall_window_s,
+            progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
+            step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg),
     )
 
 
@@ -355,6 +361,7 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     frozen_robot = config.faults.frozen_robot if config.faults.enabled else -1
     reached, ttg, all_reached, makespan = _goals(final, duration, M, frozen_robot)
     info = records.info
+    stalls = _stalls(config, scenario, records, reached, ttg, frozen_robot)
     metrics = {
         "name": config.name,
         "backend": config.sim.backend,
@@ -364,13 +371,19 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         "min_separation_ratio": _num(sep["min_separation_ratio"]),
         "worst_pair": list(sep["worst_pair"]) if sep["worst_pair"] is not None else None,
         **{k: v for k, v in world.items() if not k.startswith("per_robot")},
-        "makespan_s": makespan,
+        "makespan_s": stalls["makespan_s"],
+        "makespan_over_bound": stalls["makespan_over_bound"],
+        "parked": stalls["parked"],
+        "stalls": stalls["stalls"],
+        "stalled_s": stalls["stalled_s"],
+        "sidestep_s": stalls["sidestep_s"],
         "duration_s": duration,
         "replans": int(records.t.shape[0]),
         "robots": M,
         "peak_speed": _num(np.nanmax(kin.max_speed)),
         "peak_speed_over_limit": _num(np.nanmax(kin.max_speed / scenario.v_max)),
-        "per_robot": _per_robot(scenario, reached, ttg, kin, world),
+        "per_robot": [{**r, **x} for r, x in zip(_per_robot(scenario, reached, ttg, kin, world),
+                                                    stalls["per_robot"], strict=True)],
         "solver": _solver(info, solve_ms),
         "faults": _fault_summary(config, records, sep, min_dist, scenario, frozen_robot),
         "fallbacks": {
@@ -384,9 +397,13 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
 
 
 def _success(metrics: dict) -> bool:
-    """Every responsive robot reached every waypoint, and no robot touched another, an
-    obstacle or the workspace's boundary."""
-    return bool(metrics["success_reached"] and metrics["collisions"] == 0
+    """Every responsive robot reached every waypoint or is parked beside its occupied
+    last goal (per_robot ``parked``), and no robot touched another, an obstacle or the
+    workspace's boundary."""
+    frozen = metrics["faults"]["frozen_robot"]
+    arrived = all(r["reached"] or r.get("parked", False)
+                  for i, r in enumerate(metrics["per_robot"]) if i != frozen)
+    return bool(arrived and metrics["collisions"] == 0
                 and metrics["obstacle_collisions"] == 0 and metrics["workspace_violations"] == 0)
 
 
@@ -400,6 +417,39 @@ def _goals(final, duration: float, M: int, frozen_robot: int):
     ttg = np.where(reached[:, -1], reach_time[:, -1], np.nan)
     makespan = float(np.nanmax(ttg[responsive])) if all_reached else None
     return reached, ttg, all_reached, makespan
+
+
+def _stalls(config: Config, scenario: Scenario, records, reached, ttg, frozen_robot: int):
+    """Stalls, parked robots and the makespan (metrics.json ``stalls``, ``stalled_s``,
+    ``sidestep_s``, ``parked``, ``makespan_s``, ``makespan_over_bound`` and per robot
+    ``stalls``, ``stalled_s``, ``sidestep_s``, ``parked``, ``parked_at_s``)."""
+    info = records.info
+    M = scenario.num_robots
+    dt = 1.0 / config.planner.replan_hz
+    n_stalls, stalled_s, side_s = stall_summary(info.stalled, info.sidestep, dt)
+    last_wp = np.asarray(records.wp) == scenario.num_waypoints - 1
+    parked, parked_at = mt.parked_robots(
+        records.t, records.p, records.v, info.goal_moved, info.goal_point, last_wp,
+        config.sim.goal_tolerance_m, config.sim.goal_speed_tolerance_mps)
+    done = reached[:, -1]
+    parked = parked & ~done
+    responsive = np.arange(M) != frozen_robot
+    arrived = bool(np.all((done | parked)[responsive]))
+    times = np.where(done, ttg, parked_at)
+    makespan = float(np.nanmax(times[responsive])) if arrived and np.any(responsive) else None
+    bound = mt.makespan_bound(scenario.start[responsive], scenario.waypoints[responsive],
+                              scenario.v_max[responsive], scenario.a_max[responsive]) \
+        if np.any(responsive) else math.nan
+    ratio = makespan / bound if makespan is not None and bound > 0 else None
+    per_robot = [{"stalls": int(n_stalls[i]), "stalled_s": float(stalled_s[i]),
+                  "sidestep_s": float(side_s[i]), "parked": bool(parked[i]),
+                  "parked_at_s": _num(parked_at[i]) if parked[i] else None}
+                 for i in range(M)]
+    return {"arrived": arrived, "makespan_s": makespan,
+            "makespan_over_bound": None if ratio is None else _num(ratio),
+            "parked": int(np.sum(parked[responsive])), "stalls": int(np.sum(n_stalls)),
+            "stalled_s": float(np.sum(stalled_s)), "sidestep_s": float(np.sum(side_s)),
+            "per_robot": per_robot}
 
 
 def _per_robot(scenario: Scenario, reached, ttg, kin, world: dict) -> list[dict]:

@@ -18,7 +18,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BeforeValidator, Field, Strict, ValidationInfo
 
-from jaxplan.vehicles import VEHICLES
+from jaxplan.vehicles import ROBOTS
 
 __all__ = [
     "FieldProblem",
@@ -146,7 +146,7 @@ def _corners_order(v: tuple) -> tuple:
 Corners = Annotated[tuple[Position, Position], BeforeValidator(_corners_shape),
                     AfterValidator(_corners_order)]
 
-VehicleName = string(one_of(VEHICLES))
+VehicleName = string(one_of(ROBOTS))
 
 
 def _name_list(v: Any) -> tuple:

@@ -56,6 +56,8 @@ __all__ = [
     "time_to_goal",
     "time_to_goal_pieces",
     "solver_summary",
+    "parked_robots",
+    "makespan_bound",
 ]
 
 _ROOT_RTOL = 1e-12  # leading coefficients below this x max|coeff| are treated as zero
@@ -688,3 +690,51 @@ def solver_summary(solve_ms, converged):
         max_ms=float(mx),
         converged_frac=float(conv.mean()) if conv.size else math.nan,
     )
+
+
+# ------------------------------------------------- 6. occupied goals, the makespan bound
+
+
+def parked_robots(t, pos, vel, goal_moved, goal_point, last_wp, tol, speed_tol):
+    """Robots parked beside an occupied last goal, and when they arrived there.
+
+    A robot is **parked** when, at some replan k_a, it was at rest (speed <= speed_tol)
+    within ``tol`` of the free point its planner chose beside its occupied goal, and its
+    goal stayed occupied (the planner planned to a free point) at every replan from k_a
+    to the end of the run (so a robot whose goal was freed and that then did not go on
+    to it is not parked).
+
+    Args:
+        t: (R,) replan times, s.  pos, vel: (R, M, N) measured state at each replan.
+        goal_moved: (R, M) bool, the replan planned to a free point.  goal_point: (R, M, N)
+        the point it planned to.  last_wp: (R,) bool, the last waypoint was published.
+        tol: m.  speed_tol: m/s.
+    Returns: (parked (M,) bool, arrival time (M,) s, NaN where not parked).
+    """
+    t = np.asarray(t, np.float64)
+    moved = np.asarray(goal_moved, bool) & np.asarray(last_wp, bool)[:, None]
+    R, M = moved.shape
+    dist = np.linalg.norm(np.asarray(pos) - np.asarray(goal_point), axis=-1)
+    speed = np.linalg.norm(np.asarray(vel), axis=-1)
+    at = moved & (dist <= tol) & (speed <= speed_tol)
+    # occupied from replan k to the end: a suffix of True values
+    occupied_after = np.flip(np.logical_and.accumulate(np.flip(moved, 0), axis=0), 0)
+    ok = at & occupied_after
+    parked = np.any(ok, axis=0) if R else np.zeros(M, bool)
+    first = np.argmax(ok, axis=0) if R else np.zeros(M, int)
+    arrival = np.where(parked, t[first] if R else np.nan, np.nan)
+    return parked, arrival
+
+
+def makespan_bound(start, waypoints, v_max, a_max):
+    """The straight-line bound on the makespan, s: max over robots of D_i / v_max +
+    v_max / a_max, D_i the length of the polyline from its start through its waypoints
+    (a robot alone, accelerating to v_max and braking at a_max, needs at least
+    D / v_max + v_max / a_max when D >= v_max^2 / a_max).
+
+    Args: start (M, N) m; waypoints (M, W, N) m; v_max, a_max (M,) m/s, m/s^2.
+    """
+    pts = np.concatenate([np.asarray(start)[:, None], np.asarray(waypoints)], axis=1)
+    D = np.sum(np.linalg.norm(np.diff(pts, axis=1), axis=-1), axis=1)
+    v, a = np.asarray(v_max, np.float64), np.asarray(a_max, np.float64)
+    return float(np.max(D / v + v / a)) if len(D) else math.nan

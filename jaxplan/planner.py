@@ -57,6 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan import deadlock as dl
 from jaxplan import solve
 from jaxplan.nlp import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.predict import predict_arrays, quintic_terms
@@ -116,6 +117,8 @@ class FleetParams(NamedTuple):
     hit its iteration cap.  settings: solve.SolverSettings.  static: the world's
     obstacles and workspace faces (:class:`jaxplan.world.StaticRows`, R =
     ``structure.nlp.n_static`` rows; None when R = 0), the same for every robot.
+    deadlock: stall detection and sidestep settings
+    (:class:`jaxplan.deadlock.DeadlockParams`); None: neither.
     """
 
     weights: Weights
@@ -128,6 +131,7 @@ class FleetParams(NamedTuple):
     accept_violation: jax.Array
     settings: solve.SolverSettings
     static: StaticRows | None = None
+    deadlock: dl.DeadlockParams | None = None
 
 
 class Views(NamedTuple):
@@ -156,7 +160,8 @@ class PlanState(NamedTuple):
     robot in each other-robot slot of the NLPs (with ``max_neighbors``; -1: none), so
     that multipliers follow their robot when the selection changes.  retry: (M,) bool,
     the robot's last solve was not accepted: its next solve starts from the cold guesses
-    (:func:`solve_fleet`).
+    (:func:`solve_fleet`).  deadlock: each robot's stall memory
+    (:class:`jaxplan.deadlock.DeadlockState`).
     """
 
     plan: Trajectory
@@ -165,10 +170,17 @@ class PlanState(NamedTuple):
     penalty: jax.Array
     neighbors: jax.Array
     retry: jax.Array
+    deadlock: dl.DeadlockState | None = None
 
 
 class ReplanInfo(NamedTuple):
-    """Per-robot diagnostics of one replan, each (M,)."""
+    """Per-robot diagnostics of one replan, each (M,) (goal_point (M, N)).
+
+    stalled: the robot is stalled (:mod:`jaxplan.deadlock`; False without
+    ``FleetParams.deadlock``).  sidestep: it plans to a sidestep sub-goal.  goal_point:
+    the end point it planned to (its goal, a sub-goal, or the free point beside an
+    occupied goal).
+    """
 
     status: jax.Array
     iterations: jax.Array
@@ -177,6 +189,9 @@ class ReplanInfo(NamedTuple):
     ineq_violation: jax.Array
     fallback: jax.Array  # ACCEPTED / KEPT_PREVIOUS / BRAKING / BEST_EFFORT
     goal_moved: jax.Array  # bool: planned to the nearest free point, its goal is occupied
+    stalled: jax.Array
+    sidestep: jax.Array
+    goal_point: jax.Array
 
 
 def fresh_views(p, v, a, goal_p, goal_v, rest) -> Views:
@@ -258,16 +273,47 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     """
     M = p.shape[0]
     preds, inflate, floor = view_predictions(fp, views)
+    ds, stalled, side, goal_p, goal_v, rest = stall_step(fp, ps, views, p, goal_p, goal_v, rest)
     params, goal_moved, idx, mult_prev = fleet_nlps(fp, ps, views, preds, inflate, floor, p, v,
                                                     a, goal_p, goal_v, rest, structure)
+    if ds is not None:  # a sidestep starts or ends: the end state's kind changes
+        switched = (ps.deadlock.left > 0) != side
+        mult_prev = tree_where(switched, jax.tree.map(jnp.zeros_like, mult_prev), mult_prev)
+        ps = ps._replace(penalty=jnp.where(switched, fp.settings.mu0, ps.penalty))
     sol = solve_fleet(fp, ps, params, mult_prev, structure)
     plan, fallback, new_mult, new_pen = choose_plans(fp, ps, params, sol, p, v, a, structure)
+    if ds is not None:
+        ds = ds._replace(occupied=goal_moved & ~side)
     new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32),
-                       (fallback != ACCEPTED) & fp.robot_mask)
+                       (fallback != ACCEPTED) & fp.robot_mask, ds)
     info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
                       sol.ineq_violation, fallback.astype(jnp.int32),
-                      goal_moved & fp.robot_mask)
+                      goal_moved & fp.robot_mask, stalled & fp.robot_mask,
+                      side & fp.robot_mask, params.goal_p)
     return new_ps, info
+
+
+def stall_step(fp: FleetParams, ps: PlanState, views: Views, p, goal_p, goal_v, rest):
+    """Stall detection and the sidestep (:mod:`jaxplan.deadlock`) from each robot's own
+    view: who is near comes from ``views``.  Returns (the new DeadlockState or None,
+    stalled (M,), sidestep (M,), and the goals to plan to: goal_p, goal_v (M, N),
+    rest (M,)).  Without ``fp.deadlock`` (or ``ps.deadlock``): nothing changes."""
+    M = p.shape[0]
+    off = jnp.zeros((M,), bool)
+    if fp.deadlock is None or ps.deadlock is None:
+        return ps.deadlock, off, off, goal_p, goal_v, rest
+    eye = jnp.eye(M, dtype=bool)
+    mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
+    near = dl.near_others(p, views.p, fp.radius, jnp.broadcast_to(fp.radius, (M, M)), mask,
+                          fp.deadlock.near)
+    ds, stalled, side, _ = dl.observe(ps.deadlock, fp.deadlock, fp.dt, p, goal_p, near)
+    stalled, side = stalled & fp.robot_mask, side & fp.robot_mask
+    ds = ds._replace(left=jnp.where(fp.robot_mask, ds.left, 0.0))
+    goal_p, goal_v, rest = dl.planning_goals(ds, goal_p, goal_v, rest)
+    if fp.static is not None:  # a sidestep sub-goal stays out of obstacles and walls
+        goal_p = jnp.where(side[:, None], clear_of_static(goal_p, fp.radius, fp.static),
+                           goal_p)
+    return ds, stalled, side, goal_p, goal_v, rest
 
 
 def view_predictions(fp: FleetParams, views: Views):
@@ -536,7 +582,8 @@ def initial_plan_state(p, structure: PlannerStructure, n_others: int) -> PlanSta
     mult = solve.zero_multipliers(dummy, nlp)
     mult = jax.tree.map(lambda m: jnp.zeros((M,) + m.shape), mult)
     return PlanState(plan, jnp.zeros((M,), bool), mult, jnp.zeros((M,)),
-                     jnp.full((M, Mo), -1, jnp.int32), jnp.zeros((M,), bool))
+                     jnp.full((M, Mo), -1, jnp.int32), jnp.zeros((M,), bool),
+                     dl.initial_state(p))
 
 
 def remap_slots(lam, old_idx, new_idx):

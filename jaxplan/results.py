@@ -307,7 +307,7 @@ def _limit_value(table, key, path, where):
 def _resolve_limits(vehicle, config, metrics, cpath, mpath):
     """Per-robot v_max, a_max: config [limits], else metrics.json (limits.* or top level),
     else the vehicle table; NaN where none is known (an unknown vehicle name)."""
-    from jaxplan.vehicles import VEHICLES
+    from jaxplan.vehicles import ROBOTS
 
     out = {}
     for key in ("v_max", "a_max"):
@@ -320,6 +320,6 @@ def _resolve_limits(vehicle, config, metrics, cpath, mpath):
             out[key] = np.full(len(vehicle), v)
         else:
             out[key] = np.array(
-                [getattr(VEHICLES[name], key) if name in VEHICLES else np.nan for name in vehicle]
+                [getattr(ROBOTS[name], key) if name in ROBOTS else np.nan for name in vehicle]
             )
     return out

@@ -31,6 +31,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan.deadlock import published_goals
 from jaxplan.faults import CommState, FaultParams, communicate, initial_comm
 from jaxplan.planner import (
     FleetParams,
@@ -149,7 +150,9 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     M = st.p.shape[0]
     dt = fp.dt
     goal_p, goal_v, rest = current_goals(task, st.wp, st.reached)
-    comm, views, cstats = exchange(task, st, goal_p, goal_v, rest, structure)
+    # what the robots broadcast: a robot that sidesteps its sub-goal (jaxplan.deadlock)
+    pub = published_goals(st.plans.deadlock, goal_p, goal_v, rest)
+    comm, views, cstats = exchange(task, st, *pub, structure)
     plans, info = replan(fp, st.plans, views, st.p, st.v, st.a, goal_p, goal_v, rest,
                          structure.planner)
     plans = freeze(task, st, plans, structure)

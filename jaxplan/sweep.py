@@ -192,7 +192,7 @@ _FREE_TABLES = ("sweep", "name", "description")
 # keys added later whose default changed what a run does: a config.toml without one was
 # written by a version that behaved as this value (so resuming it under the new default
 # is a different config, not the same one)
-_LEGACY_VALUES = {("planner", "coast_samples"): 0}
+_LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off"}
 
 
 def _guard_config(out: Path, config: Config) -> None:

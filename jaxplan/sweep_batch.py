@@ -181,6 +181,10 @@ def csv_row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
         "min_obstacle_clearance_m": _csv_cell(metrics["min_obstacle_clearance_m"]),
         "workspace_violations": _csv_cell(int(metrics["workspace_violations"])),
         "min_workspace_clearance_m": _csv_cell(metrics["min_workspace_clearance_m"]),
+        "stalls": _csv_cell(int(metrics.get("stalls", 0))),
+        "stalled_s": _csv_cell(metrics.get("stalled_s")),
+        "parked": _csv_cell(int(metrics.get("parked", 0))),
+        "makespan_over_bound": _csv_cell(metrics.get("makespan_over_bound")),
     })
     return row
 

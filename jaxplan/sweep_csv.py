@@ -42,6 +42,7 @@ COLUMNS = KEY_COLUMNS + (
     "error",
     "obstacle_collisions", "min_obstacle_clearance_m", "workspace_violations",
     "min_workspace_clearance_m",
+    "stalls", "stalled_s", "parked", "makespan_over_bound",
 )
 ANALYSIS_COLUMNS = ("q_obs", "q_lim", "scenario", "seed", "success", "min_separation_ratio",
                     "makespan_s", "collisions")

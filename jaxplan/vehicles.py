@@ -147,6 +147,27 @@ VEHICLES: dict[str, Vehicle] = {
 }
 
 
+@dataclass(frozen=True)
+class GroundRobot:
+    """A disc robot that moves in the plane (2-D configs only; no MJX model).
+
+    Attributes: name; radius (m), the disc's collision radius; v_max, a_max, j_max: the
+    default planner limits (m/s, m/s^2, m/s^3; a config's ``[limits]`` overrides them).
+    """
+
+    name: str
+    radius: float
+    v_max: float = 2.0
+    a_max: float = 4.0
+    j_max: float = 12.0
+
+
+GROUND_ROBOTS: dict[str, GroundRobot] = {"ground": GroundRobot("ground", radius=0.3)}
+
+# every robot kind a config can name: the RotorS multirotors and the ground robot
+ROBOTS: dict[str, Vehicle | GroundRobot] = {**VEHICLES, **GROUND_ROBOTS}
+
+
 def get_vehicle(name: str) -> Vehicle:
     """Look a vehicle up by name; a clear ValueError names the unknown name and the choices."""
     try:

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from jaxplan import scenarios as S
 from jaxplan.scenarios import ScenarioError
-from jaxplan.vehicles import VEHICLES
+from jaxplan.vehicles import ROBOTS
 
 FIELDS = ("start", "waypoints", "rest", "goal_velocity", "has_goal_velocity", "radius",
           "v_max", "a_max", "j_max")
@@ -55,7 +55,7 @@ def test_invariants(name, seed):
     assert sc.goal_velocity.shape == (M, W, N) and sc.has_goal_velocity.shape == (M, W)
     for f in ("radius", "v_max", "a_max", "j_max"):
         assert getattr(sc, f).shape == (M,) and np.all(getattr(sc, f) > 0)
-    np.testing.assert_allclose(sc.radius, [VEHICLES[v].radius for v in sc.vehicles])
+    np.testing.assert_allclose(sc.radius, [ROBOTS[v].radius for v in sc.vehicles])
     for f in FIELDS:
         assert not getattr(sc, f).flags.writeable
     rho = sc.safety_distance

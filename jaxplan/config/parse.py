@@ -68,7 +68,7 @@ from jaxplan.fields import (
     string,
 )
 from jaxplan.scenarios import GENERATOR_PARAMS, PAPER_SCENARIOS, SCENARIOS, ScenarioError
-from jaxplan.vehicles import VEHICLES
+from jaxplan.vehicles import GROUND_ROBOTS, ROBOTS
 
 # ---------------------------------------------------------------------------------------
 # Robots
@@ -96,7 +96,7 @@ def _parse_robot(raw: Any, i: int, dim: int | None,
     t = as_table(raw, p)
     check_keys(t, ROBOT_KEYS, p)
     if "vehicle" not in t:
-        raise InvalidValue(f"{p}.vehicle", f"missing; choose one of {', '.join(VEHICLES)}")
+        raise InvalidValue(f"{p}.vehicle", f"missing; choose one of {', '.join(ROBOTS)}")
     vehicle = validate_value(VehicleName, t["vehicle"], f"{p}.vehicle")
     if "start" not in t:
         raise InvalidValue(f"{p}.start", "missing; give the start position [x, y, z]")
@@ -198,6 +198,8 @@ def _parse_scenario(raw: Any, default_end: str) -> ScenarioConfig:
     check_keys(t, ("kind", *model.keys()), "scenario")
     values = {k: v for k, v in t.items() if k != "kind"}
     dim = _scenario_dim(model, values)
+    if _ground_fleet(model, values):
+        dim = 2  # ground robots move in the plane: no dim and no vector given means 2-D
     values["dim"] = dim
     values.setdefault("end_state", default_end)
     params = validate_value(model, values, "scenario", dim=dim,
@@ -206,6 +208,14 @@ def _parse_scenario(raw: Any, default_end: str) -> ScenarioConfig:
         raise InvalidValue("scenario.rows", f"rows * cols must be <= {MAX_ROBOTS}, got "
                                         f"{params.rows * params.cols}")
     return ScenarioConfig(kind, params.resolved())
+
+
+def _ground_fleet(model: type, values: dict[str, Any]) -> bool:
+    """The table names only ground robots and gives neither ``dim`` nor a vector."""
+    vehicles = values.get("vehicles")
+    return ("dim" not in values and not any(k in values for k, _ in _vector_keys(model))
+            and isinstance(vehicles, (list, tuple)) and len(vehicles) > 0
+            and all(isinstance(v, str) and v in GROUND_ROBOTS for v in vehicles))
 
 
 @functools.cache
@@ -434,6 +444,8 @@ def _check_fleet(config: Config, robot_keys: list[_RobotKeys]) -> None:
     def label(i: int) -> str:
         return f"robots[{i - n_gen}]" if i >= n_gen else f"generated robot {i}"
 
+    _check_ground(fleet, n_gen)
+
     problems = scenarios.scenario_problems(fleet, max_problems=1, label=label)
     if problems:
         p = problems[0]
@@ -443,6 +455,17 @@ def _check_fleet(config: Config, robot_keys: list[_RobotKeys]) -> None:
             W = len(config.robots[p.robot - n_gen].waypoints)
             key = keys.start() if p.waypoint is None else keys.goal(min(p.waypoint, W - 1))
         raise InvalidValue(key, p.message)
+
+
+def _check_ground(fleet, n_gen: int) -> None:
+    """Ground robots move in the plane: a fleet with one needs 2-D positions."""
+    if fleet.dim == 2:
+        return
+    for i, v in enumerate(fleet.vehicles):
+        if v in GROUND_ROBOTS:
+            key = f"robots[{i - n_gen}].vehicle" if i >= n_gen else "scenario.vehicles"
+            raise InvalidValue(key, f"{v!r} is a ground robot, which moves in the plane; give "
+                                    "2-D positions (or dim = 2) or an aerial vehicle")
 
 
 def load_config(path: str | Path) -> Config:

@@ -18,7 +18,7 @@ from jaxplan.config.schema import (
     RobotConfig,
 )
 from jaxplan.scenarios import PAPER_SCENARIOS, Scenario
-from jaxplan.vehicles import VEHICLES
+from jaxplan.vehicles import ROBOTS
 from jaxplan.world import World, obstacle_arrays
 
 
@@ -72,8 +72,8 @@ def config_to_toml(config: Config) -> str:
     lines = ["# jaxplan resolved config: every default written out."]
     if any(getattr(config.limits, k) is None for k in ("v_max", "a_max", "j_max")):
         used = sorted({r.vehicle for r in config.robots} | _scenario_vehicles(config))
-        per = "; ".join(f"{v} v_max={VEHICLES[v].v_max:g} a_max={VEHICLES[v].a_max:g} "
-                        f"j_max={VEHICLES[v].j_max:g}" for v in used)
+        per = "; ".join(f"{v} v_max={ROBOTS[v].v_max:g} a_max={ROBOTS[v].a_max:g} "
+                        f"j_max={ROBOTS[v].j_max:g}" for v in used)
         lines.append(f"# [limits] not given are per vehicle: {per}")
     d = config_to_dict(config)
     lines += [f"{k} = {_toml_value(v)}" for k, v in d.items()

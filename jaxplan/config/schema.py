@@ -18,6 +18,7 @@ from pydantic import (
 from pydantic.dataclasses import dataclass
 
 from jaxplan import scenarios
+from jaxplan.deadlock import RESOLUTIONS
 from jaxplan.fields import (
     MAX_ROBOTS,
     EndState,
@@ -55,6 +56,14 @@ DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot
 DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solve.default_pool)
 DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
 MAX_COAST_SAMPLES = 256
+# stalls and their resolution (jaxplan/deadlock.py)
+DEFAULT_DEADLOCK = "sidestep"            # "sidestep" | "off" (detection runs either way)
+DEFAULT_STALL_WINDOW_S = 2.0             # s without progress before a robot is stalled
+DEFAULT_STALL_PROGRESS_M = 0.2           # m: less progress than this over the window
+DEFAULT_STALL_NEAR_M = 1.0               # m of clearance to another robot that counts as near
+DEFAULT_SIDESTEP_HOLD_S = 2.0            # s a stalled robot sidesteps
+DEFAULT_SIDESTEP_STEP_M = 1.0            # m from the robot to its sidestep sub-goal
+DEFAULT_SIDESTEP_ANGLE_DEG = 60.0        # deg to the right of the direction to its goal
 
 DEFAULT_BACKEND = "ideal"
 DEFAULT_DURATION_S = 30.0
@@ -109,6 +118,9 @@ class PlannerConfig:
     CPU (12 for more than 32 robots with at most 16 others per NLP), all M elsewhere.
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
+    deadlock "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,
+    sidestep_hold_s, sidestep_step_m, sidestep_angle_deg: stall detection (always on)
+    and the sidestep that resolves a stall (jaxplan/deadlock.py).
     """
 
     replan_hz: number(gt=0.0) = DEFAULT_REPLAN_HZ
@@ -128,6 +140,13 @@ class PlannerConfig:
     max_neighbors: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_MAX_NEIGHBORS
     coast_samples: integer(ge=0, le=MAX_COAST_SAMPLES) = DEFAULT_COAST_SAMPLES
     solver_pool: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_SOLVER_POOL
+    deadlock: string(one_of(RESOLUTIONS)) = DEFAULT_DEADLOCK
+    stall_window_s: number(gt=0.0, le=1e4) = DEFAULT_STALL_WINDOW_S
+    stall_progress_m: number(gt=0.0, le=1e3) = DEFAULT_STALL_PROGRESS_M
+    stall_near_m: number(ge=0.0, le=1e3) = DEFAULT_STALL_NEAR_M
+    sidestep_hold_s: number(gt=0.0, le=1e4) = DEFAULT_SIDESTEP_HOLD_S
+    sidestep_step_m: number(gt=0.0, le=1e3) = DEFAULT_SIDESTEP_STEP_M
+    sidestep_angle_deg: number(ge=0.0, le=90.0) = DEFAULT_SIDESTEP_ANGLE_DEG
 
 
 @dataclass(frozen=True, config=SECTION_CONFIG)

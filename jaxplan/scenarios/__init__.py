@@ -1,11 +1,12 @@
-"""Scenarios: the :class:`Scenario` fleet task, the paper's four simulations, the four
+"""Scenarios: the :class:`Scenario` fleet task, the paper's four simulations, the five
 benchmark generators with their parameter models, and the registry (their config keys:
 docs/DESIGN.md, "Config (TOML)").
 
 A generator's ``[scenario]`` keys are declared once, by the parameter model next to it
 (:class:`AntipodalSphereParams`, :class:`RandomBoxParams`, :class:`GridSwapParams`,
-:class:`StackedParams`, field types from jaxplan/fields.py): jaxplan/config/ validates a
-config's ``[scenario]`` table with it, and the generator's defaults are the model's.
+:class:`StackedParams`, :class:`AntipodalCircleParams`, field types from
+jaxplan/fields.py): jaxplan/config/ validates a config's ``[scenario]`` table with it,
+and the generator's defaults are the model's.
 
 Everything here is host-side NumPy (float64), deterministic for a seed: every random
 choice draws from ``numpy.random.default_rng(seed)``.  Units are SI (m, m/s, m/s^2,
@@ -45,11 +46,13 @@ start and goal, so that seeds differ and exact symmetries are broken.
 from jaxplan.fields import END_STATES, MAX_ROBOTS
 from jaxplan.scenarios.generators import (
     PLACEMENTS,
+    AntipodalCircleParams,
     AntipodalSphereParams,
     GeneratorParams,
     GridSwapParams,
     RandomBoxParams,
     StackedParams,
+    antipodal_circle,
     antipodal_sphere,
     default_spacing,
     grid_swap,
@@ -100,6 +103,7 @@ __all__ = [
     "RandomBoxParams",
     "GridSwapParams",
     "StackedParams",
+    "AntipodalCircleParams",
     "END_STATES",
     "MAX_ROBOTS",
     "SAFETY_MARGIN",
@@ -112,6 +116,7 @@ __all__ = [
     "random_box",
     "grid_swap",
     "stacked",
+    "antipodal_circle",
     "paper_six_neos",
     "paper_eight_fireflys_stacked",
     "paper_eight_mixed_transitions",

@@ -1,7 +1,7 @@
-"""The four benchmark generators (antipodal sphere, random box, grid swap, stacked), each
-with the parameter model that declares its ``[scenario]`` keys once: jaxplan/config/
-validates a config's ``[scenario]`` table with it, and the generator's defaults are the
-model's.  Deterministic for a seed (``numpy.random.default_rng(seed)``)."""
+"""The benchmark generators (antipodal sphere, random box, grid swap, stacked, antipodal
+circle), each with the parameter model that declares its ``[scenario]`` keys once:
+jaxplan/config/ validates a config's ``[scenario]`` table with it, and the generator's
+defaults are the model's.  Deterministic for a seed (``numpy.random.default_rng(seed)``)."""
 
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from jaxplan.fields import (
     PositiveLength,
     Tries,
     VehicleNames,
+    number,
     one_of,
     string,
 )
@@ -38,7 +39,7 @@ from jaxplan.scenarios.scenario import (
     cycle_vehicles,
     make_scenario,
 )
-from jaxplan.vehicles import VEHICLES
+from jaxplan.vehicles import ROBOTS
 
 # ----------------------------------------------------------------------------- helpers
 
@@ -101,7 +102,7 @@ def _random_rotation(rng: np.random.Generator, dim: int) -> np.ndarray:
 
 
 def _max_rho(vehicles: Sequence[str]) -> float:
-    return 2.0 * max(VEHICLES[v].radius for v in set(vehicles))
+    return 2.0 * max(ROBOTS[v].radius for v in set(vehicles))
 
 
 def _place(rng, count, sample, spacing, max_tries, what, ok=None, chunk=64):
@@ -521,3 +522,76 @@ def stacked(
     start = start + random_in_ball(rng, count, dim, jitter)
     goal = goal + random_in_ball(rng, count, dim, jitter)
     return make_scenario("stacked", names, start, goal, rest, validate=validate)
+
+
+# ------------------------------------------------------------------- antipodal circle
+
+
+def _circle_center(dim: int) -> np.ndarray:
+    return np.zeros(2) if dim == 2 else np.array([0.0, 0.0, 2.0])
+
+
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class AntipodalCircleParams(GeneratorParams):
+    """``kind = "antipodal_circle"`` (:func:`antipodal_circle`)."""
+
+    kind: ClassVar[str] = "antipodal_circle"
+    count: Count
+    radius: PositiveLength = 4.0
+    dim: Dimension = None
+    center: Position = None
+    angle_jitter_deg: number(ge=0.0, le=180.0) = 0.0
+    perturbation: NonNegativeLength = 0.0
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+    def resolved(self) -> AntipodalCircleParams:
+        return dataclasses.replace(
+            self, center=self.center or _floats(_circle_center(self.dim)))
+
+
+def antipodal_circle(
+    count: int,
+    radius: float = AntipodalCircleParams.radius,
+    vehicles: Sequence[str] = AntipodalCircleParams.vehicles,
+    seed: int = 0,
+    *,
+    center=None,
+    dim: int = 2,
+    angle_jitter_deg: float = AntipodalCircleParams.angle_jitter_deg,
+    perturbation: float = AntipodalCircleParams.perturbation,
+    end_state: str = "free",
+    validate: bool = True,
+) -> Scenario:
+    """Robots on a circle swap to the antipodal point through its centre.
+
+    The circle lies in the plane (dim = 2) or in the horizontal plane through ``center``
+    (dim = 3: every robot starts at the same height).  Robot k sits at angle
+    phi_0 + 2 pi k / count (phi_0 seeded), plus, with ``angle_jitter_deg`` > 0, a seeded
+    offset uniform in +-angle_jitter_deg; its goal is the antipodal point, plus a seeded
+    offset uniform in a ball of ``perturbation`` m.  With both 0 the swap is exactly
+    symmetric: every straight path meets every other at the centre.
+
+    Args:
+        count: M robots.  radius: m.  vehicles: names cycled over the robots.
+        seed: numpy Generator seed.  center: (dim,) m; default (0, 0) in 2-D,
+            (0, 0, 2) in 3-D.  end_state: "free" | "rest" at the goal.
+    Returns: a one-waypoint Scenario named "antipodal_circle".
+    """
+    count = _check_count(count)
+    radius = _check_pos(radius, "radius")
+    seed = check_seed(seed)
+    dim = _check_dim(dim)
+    rest = _check_end(end_state)
+    jitter = _check_pos(angle_jitter_deg, "angle_jitter_deg", strict=False)
+    perturbation = _check_pos(perturbation, "perturbation", strict=False)
+    names = cycle_vehicles(vehicles, count)
+    c = _circle_center(dim) if center is None else _check_vec(center, dim, "center")
+    rng = np.random.default_rng(seed)
+    ang = 2.0 * math.pi * np.arange(count) / count + rng.uniform(0.0, 2.0 * math.pi)
+    ang = ang + np.deg2rad(jitter) * rng.uniform(-1.0, 1.0, size=count)
+    unit = np.zeros((count, dim))
+    unit[:, 0], unit[:, 1] = np.cos(ang), np.sin(ang)
+    start = c + radius * unit
+    goal = c - radius * unit + random_in_ball(rng, count, dim, perturbation)
+    return make_scenario("antipodal_circle", names, start, goal, rest, validate=validate)

@@ -10,11 +10,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from jaxplan.scenarios.generators import (
+    AntipodalCircleParams,
     AntipodalSphereParams,
     GeneratorParams,
     GridSwapParams,
     RandomBoxParams,
     StackedParams,
+    antipodal_circle,
     antipodal_sphere,
     grid_swap,
     random_box,
@@ -67,6 +69,7 @@ GENERATORS: dict[str, Callable[..., Scenario]] = {
     "random_box": random_box,
     "grid_swap": grid_swap,
     "stacked": stacked,
+    "antipodal_circle": antipodal_circle,
     "pillars": pillars,
     "wall_gap": wall_gap,
     "low_ceiling": low_ceiling,
@@ -75,10 +78,12 @@ GENERATORS: dict[str, Callable[..., Scenario]] = {
 
 GENERATOR_PARAMS: dict[str, type[GeneratorParams]] = {
     p.kind: p for p in (AntipodalSphereParams, RandomBoxParams, GridSwapParams, StackedParams,
-                        PillarsParams, WallGapParams, LowCeilingParams, RandomObstaclesParams)
+                        AntipodalCircleParams, PillarsParams, WallGapParams, LowCeilingParams,
+                        RandomObstaclesParams)
 }
 AnyGeneratorParams = (AntipodalSphereParams | RandomBoxParams | GridSwapParams | StackedParams
-                      | PillarsParams | WallGapParams | LowCeilingParams | RandomObstaclesParams)
+                      | AntipodalCircleParams | PillarsParams | WallGapParams | LowCeilingParams
+                      | RandomObstaclesParams)
 
 _MIXED = ("firefly", "neo11")
 
@@ -112,6 +117,10 @@ SCENARIOS: dict[str, ScenarioSpec] = {
     "stacked": ScenarioSpec(
         "stacked", "a vertical stack flies to a spread-out row (default 6)",
         functools.partial(stacked, count=6)),
+    "antipodal_circle": ScenarioSpec(
+        "antipodal_circle",
+        "ground robots on a 4 m circle in the plane swap to the antipodal point (default 12)",
+        functools.partial(antipodal_circle, count=12, radius=4.0, vehicles=("ground",))),
     "pillars": ScenarioSpec(
         "pillars", "two groups cross a field of vertical cylinders (default 12 robots)",
         pillars),

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxplan.vehicles import VEHICLES
+from jaxplan.vehicles import ROBOTS
 from jaxplan.world import World, point_problems
 
 SAFETY_MARGIN = 0.2        # m, added to r_i + r_j by generators that choose spacings
@@ -42,7 +42,7 @@ class Scenario:
 
     Attributes (arrays are float64 or bool, read-only):
         name: scenario name.
-        vehicles: (M,) vehicle names (keys of ``jaxplan.vehicles.VEHICLES``).
+        vehicles: (M,) vehicle names (keys of ``jaxplan.vehicles.ROBOTS``).
         start: (M, N) start positions, m (rest: v = a = 0).
         waypoints: (M, W, N) goals in order, m; shorter lists padded by repeating the last.
         rest: (M, W) True = rest end state (v = a = 0) at that waypoint, False = free end.
@@ -142,9 +142,9 @@ def cycle_vehicles(vehicles: Sequence[str] | str, count: int) -> tuple[str, ...]
     if not vehicles:
         raise ScenarioError("vehicles: give at least one vehicle name", key="vehicles")
     for v in vehicles:
-        if v not in VEHICLES:
+        if v not in ROBOTS:
             raise ScenarioError(
-                f"vehicles: unknown vehicle {v!r}; choose one of {', '.join(sorted(VEHICLES))}",
+                f"vehicles: unknown vehicle {v!r}; choose one of {', '.join(sorted(ROBOTS))}",
                 key="vehicles",
             )
     return tuple(vehicles[i % len(vehicles)] for i in range(count))
@@ -190,9 +190,9 @@ def make_scenario(
     if M == 0:
         raise ScenarioError("the fleet is empty")
     for v in vehicles:
-        if v not in VEHICLES:
+        if v not in ROBOTS:
             raise ScenarioError(
-                f"unknown vehicle {v!r}; choose one of {', '.join(sorted(VEHICLES))}")
+                f"unknown vehicle {v!r}; choose one of {', '.join(sorted(ROBOTS))}")
     start = np.asarray(start, dtype=np.float64)
     if start.ndim != 2 or start.shape[0] != M or start.shape[1] not in (2, 3):
         raise ScenarioError(f"start: expected shape ({M}, 2 or 3), got {start.shape}")
@@ -209,7 +209,7 @@ def make_scenario(
         rest=_readonly(rest_arr),
         goal_velocity=_readonly(gv),
         has_goal_velocity=_readonly(has),
-        radius=_readonly(np.array([VEHICLES[v].radius for v in vehicles], dtype=np.float64)),
+        radius=_readonly(np.array([ROBOTS[v].radius for v in vehicles], dtype=np.float64)),
         **{k: _readonly(v) for k, v in limits.items()},
         world=world,
     )
@@ -291,7 +291,7 @@ def _goal_velocity_arrays(goal_velocity, rest: np.ndarray,
 def _limit_array(value, key: str, vehicles: tuple[str, ...]) -> np.ndarray:
     """(M,) limit ``key``: the override (scalar or (M,)) or each vehicle's own."""
     if value is None:
-        return np.array([getattr(VEHICLES[v], key) for v in vehicles], dtype=np.float64)
+        return np.array([getattr(ROBOTS[v], key) for v in vehicles], dtype=np.float64)
     return np.broadcast_to(np.asarray(value, np.float64), (len(vehicles),))
 
 

@@ -58,7 +58,7 @@ from jaxplan.scenarios.generators import (
     default_spacing,
 )
 from jaxplan.scenarios.scenario import Scenario, ScenarioError, cycle_vehicles, make_scenario
-from jaxplan.vehicles import VEHICLES
+from jaxplan.vehicles import ROBOTS
 from jaxplan.world import World, point_problems
 
 _PARAMS_CONFIG = ConfigDict(extra="forbid")
@@ -267,7 +267,7 @@ def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
             obs.append(dict(kind="sphere", center=[*xy, rng.uniform(1.0, height - 1.0)],
                             radius=s[0]))
     world = _world([-half, -half, 0.0], [half, half, height], obs)
-    rmax = max(VEHICLES[v].radius for v in set(names))
+    rmax = max(ROBOTS[v].radius for v in set(names))
     lo = np.array([-half, -half, 0.0]) + rmax + clearance
     hi = np.array([half, half, height]) - rmax - clearance
 

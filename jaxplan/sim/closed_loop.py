@@ -30,6 +30,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxplan.deadlock import published_goals
 from jaxplan.planner import FleetParams, fresh_views, replan
 from jaxplan.rollout import (
     RolloutState,
@@ -73,7 +74,7 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     st = st._replace(t=t, p=p, v=v, a=a)
     goal_p, goal_v, rest = current_goals(task, st.wp, st.reached)
     # the others are seen as measured
-    views = fresh_views(pm, vm, am, goal_p, goal_v, rest)
+    views = fresh_views(pm, vm, am, *published_goals(st.plans.deadlock, goal_p, goal_v, rest))
     plans, info = replan(fp, st.plans, views, p, v, a, goal_p, goal_v, rest, structure.planner)
     new_sim, prec = sf.simulate_period(sim, sim_state, plans.plan, 0.0, period_s)
     t1 = sf.sim_time(sim, new_sim)

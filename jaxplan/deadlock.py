@@ -1,0 +1,184 @@
+"""Deadlocks: stall detection and the right-hand sidestep (docs/DESIGN.md, [planner]).
+
+Local NLPs can settle into an equilibrium: a ring of robots that swap across its centre
+stops where every robot's plan keeps clear of the others' predictions through the
+centre, with every solve converged; robots in a cluster hold each other off their goals.
+Each robot detects this from its own view and resolves it on its own (decentralized;
+deterministic, no random draws).
+
+Detection (:func:`observe`).  Robot i tracks ``best``, the smallest distance to its
+current goal since its progress clock last restarted, and ``since``, the time since
+that distance last fell by at least ``progress`` (m).  It is **stalled** when
+``since >= window`` (s), it is more than ``progress`` from its goal, its goal is not
+occupied (a robot parked beside an occupied goal waits by design, :mod:`jaxplan.planner`)
+and another robot it sees is within ``near`` (m) of clearance (centre distance minus both
+radii).  The clock restarts when its goal changes and while it sidesteps.
+
+Resolution (:func:`planning_goals`): a stalled robot *sidesteps* for ``hold`` seconds:
+every replan it plans to a sub-goal ``step`` m from where it is, at ``angle`` to the
+right of the direction to its goal (right: clockwise seen from above, +z up; in 3-D the
+right is horizontal), with a rest end there (a position-only end at a sub-goal that
+moves on every replan is chased ever faster: measured, robots of a planar 4-robot swap
+left at 48 m/s).  Being always ``step`` ahead, it is never reached.  With the
+same rule in every robot, robots that meet head on pass each other on the right and a
+stalled ring turns into a roundabout; the sub-goal is what the robot broadcasts as its
+goal while it sidesteps (:func:`published_goals`), so the others predict where it is
+going.  Then it flies to its goal again, and its progress clock starts afresh.
+
+Everything here is pure and jit-able; parameters are traced (:class:`DeadlockParams`:
+a change does not recompile; ``enabled`` switches the sidestep off, detection stays).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+RESOLUTIONS = ("sidestep", "off")
+
+
+class DeadlockParams(NamedTuple):
+    """Traced stall detection and sidestep settings (scalars, or batched for sweeps).
+
+    enabled: () bool, sidestep when stalled.  window: () s.  progress: () m.  near: () m
+    of clearance.  hold: () s of sidestep.  step: () m to the sub-goal.  angle: () rad
+    to the right of the goal direction.
+    """
+
+    enabled: jax.Array
+    window: jax.Array
+    progress: jax.Array
+    near: jax.Array
+    hold: jax.Array
+    step: jax.Array
+    angle: jax.Array
+
+
+def default_params(enabled: bool = True, window: float = 2.0, progress: float = 0.2,
+                   near: float = 1.0, hold: float = 2.0, step: float = 1.0,
+                   angle_deg: float = 60.0) -> DeadlockParams:
+    """DeadlockParams from plain numbers (the config's defaults)."""
+    f = lambda x: jnp.asarray(float(x))  # noqa: E731
+    return DeadlockParams(jnp.asarray(bool(enabled)), f(window), f(progress), f(near),
+                          f(hold), f(step), f(jnp.deg2rad(angle_deg)))
+
+
+class DeadlockState(NamedTuple):
+    """Each robot's stall memory, (M, ...).
+
+    goal: (M, N) the goal the clock refers to.  best: (M,) m, closest distance to it
+    since the clock restarted.  since: (M,) s since ``best`` last fell by ``progress``.
+    left: (M,) s of sidestep left (> 0: sidestepping).  sub: (M, N) the sub-goal of the
+    last replan.  occupied: (M,) bool, the last replan planned beside an occupied goal.
+    """
+
+    goal: jax.Array
+    best: jax.Array
+    since: jax.Array
+    left: jax.Array
+    sub: jax.Array
+    occupied: jax.Array
+
+
+def initial_state(p, goal=None) -> DeadlockState:
+    """No robot stalled; goals unknown (NaN: the first replan restarts every clock).
+    p: (M, N) positions."""
+    M = p.shape[0]
+    g = jnp.full_like(p, jnp.nan) if goal is None else goal
+    return DeadlockState(g, jnp.full((M,), jnp.inf), jnp.zeros((M,)), jnp.zeros((M,)),
+                         jnp.asarray(p), jnp.zeros((M,), bool))
+
+
+def right_of(u):
+    """The unit vector to the right of directions u (..., N), N = 2 or 3 (+z up): in the
+    horizontal plane, (u_y, -u_x[, 0]) normalized; +x where u is vertical or zero."""
+    r = jnp.stack([u[..., 1], -u[..., 0]], axis=-1)
+    if u.shape[-1] == 3:
+        r = jnp.concatenate([r, jnp.zeros_like(u[..., :1])], axis=-1)
+    n = jnp.linalg.norm(r, axis=-1, keepdims=True)
+    ex = jnp.zeros(u.shape[-1]).at[0].set(1.0)
+    return jnp.where(n > 1e-9, r / jnp.maximum(n, 1e-300), ex)
+
+
+def near_others(p, others_p, radius, other_radius, mask, near):
+    """(M,) bool: some other robot (others_p (M, Mo, N), its radius (M, Mo), mask
+    (M, Mo)) within ``near`` m of clearance of robot i (p (M, N), radius (M,))."""
+    d = jnp.linalg.norm(others_p - p[:, None, :], axis=-1)
+    clear = d - radius[:, None] - other_radius
+    return jnp.any(mask & jnp.isfinite(clear) & (clear <= near), axis=-1)
+
+
+def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near):
+    """One replan's stall bookkeeping.
+
+    Args: ds: the state after the previous replan.  prm: DeadlockParams.  dt: () s since
+    then.  p: (M, N) positions now.  goal_p: (M, N) current goals (the real ones).
+    near: (M,) bool, another robot close (:func:`near_others`).
+    Returns: (new DeadlockState, stalled (M,) bool, sidestep (M,) bool: sidestepping
+    in this replan, started (M,) bool: a sidestep starts now).
+    """
+    d = jnp.linalg.norm(goal_p - p, axis=-1)
+    d = jnp.where(jnp.isfinite(d), d, 0.0)
+    new_goal = ~jnp.all(goal_p == ds.goal, axis=-1)
+    left = jnp.maximum(ds.left - dt, 0.0)
+    left = jnp.where(new_goal, 0.0, left)
+    side = left > 0
+    improved = d <= ds.best - prm.progress
+    restart = new_goal | improved | side
+    best = jnp.where(restart, d, ds.best)
+    since = jnp.where(restart, 0.0, ds.since + dt)
+    stalled = (since >= prm.window) & (d > prm.progress) & near & ~ds.occupied
+    started = stalled & prm.enabled
+    left = jnp.where(started, prm.hold, left)
+    side = left > 0
+    # the clock restarts while sidestepping (progress is measured afresh afterwards)
+    best = jnp.where(side, d, best)
+    since = jnp.where(side, 0.0, since)
+    sub = jnp.where(side[:, None], sidestep_goal(p, goal_p, prm), p)
+    new = DeadlockState(goal_p, best, since, left, sub, ds.occupied)
+    return new, stalled, side, started
+
+
+def sidestep_goal(p, goal_p, prm: DeadlockParams):
+    """(M, N) the sub-goal ``step`` m (at most the distance to the goal) from p, at
+    ``angle`` to the right of the direction to the goal."""
+    g = goal_p - p
+    d = jnp.linalg.norm(g, axis=-1, keepdims=True)
+    u = jnp.where(d > 1e-9, g / jnp.maximum(d, 1e-300), 0.0)
+    u = jnp.where(d > 1e-9, u, jnp.zeros_like(u).at[..., 0].set(1.0))
+    direction = jnp.cos(prm.angle) * u + jnp.sin(prm.angle) * right_of(u)
+    return p + jnp.minimum(prm.step, jnp.maximum(d, 1e-3)) * direction
+
+
+def planning_goals(ds: DeadlockState, goal_p, goal_v, rest):
+    """The goals each robot plans to: its sub-goal (a rest end) while it sidesteps, else
+    its goal.  goal_p, goal_v (M, N); rest (M,), True: fully defined end state."""
+    side = ds.left > 0
+    return (jnp.where(side[:, None], ds.sub, goal_p),
+            jnp.where(side[:, None], 0.0, goal_v), side | rest)
+
+
+def published_goals(ds: DeadlockState | None, goal_p, goal_v, rest):
+    """What each robot broadcasts as its goal before a replan (``ds``: the state after
+    the previous replan; None: no deadlock handling): its sub-goal while it sidesteps."""
+    if ds is None:
+        return goal_p, goal_v, rest
+    return planning_goals(ds, goal_p, goal_v, rest)
+
+
+# ------------------------------------------------------------------ on the host (metrics)
+
+
+def stall_summary(stalled, sidestep, dt: float):
+    """Per robot, from the per-replan flags stalled, sidestep (R, M) bool (numpy):
+    (stalls (M,) int: stall onsets (a replan stalled after one that was not),
+    stalled_s (M,): time stalled, sidestep_s (M,): time sidestepping)."""
+    import numpy as np
+
+    s = np.asarray(stalled, bool)
+    prev = np.concatenate([np.zeros((1,) + s.shape[1:], bool), s[:-1]], axis=0)
+    onsets = np.sum(s & ~prev, axis=0)
+    return (onsets.astype(int), np.sum(s, axis=0) * dt,
+            np.sum(np.asarray(sidestep, bool), axis=0) * dt)

@@ -1,0 +1,253 @@
+"""Stalls and their resolution (jaxplan/deadlock.py), ground robots, parked robots."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxplan import deadlock as dl
+from jaxplan import metrics as mt
+
+DT = 0.125
+_observe = jax.jit(dl.observe)
+
+
+def _history(positions, goals, near, prm=None):
+    """Run observe over a hand-made history: positions (K, M, N), goals (M, N) or
+    (K, M, N), near (K, M).  Returns stalled, sidestep (K, M) and the last state."""
+    prm = prm or dl.default_params(enabled=False)
+    positions = np.asarray(positions, float)
+    K = positions.shape[0]
+    goals = np.broadcast_to(np.asarray(goals, float), positions.shape)
+    ds = dl.initial_state(jnp.asarray(positions[0]))
+    out_s, out_side = [], []
+    for k in range(K):
+        ds, stalled, side, _ = _observe(ds, prm, DT, jnp.asarray(positions[k]),
+                                        jnp.asarray(goals[k]), jnp.asarray(near[k]))
+        out_s.append(np.asarray(stalled))
+        out_side.append(np.asarray(side))
+    return np.array(out_s), np.array(out_side), ds
+
+
+def test_stall_detection_on_a_hand_made_history():
+    # robot 0 approaches its goal at 1 m/s for 1 s, then stands 3 m short of it with a
+    # robot near; robot 1 stands still with nobody near; robot 2 creeps at 0.15 m/s
+    # (0.3 m per 2 s window: progress); robot 3 stands at its goal with a robot near
+    K = 60
+    t = DT * np.arange(K)
+    x0 = np.minimum(t, 1.0)
+    pos = np.zeros((K, 4, 2))
+    pos[:, 0, 0] = x0
+    pos[:, 1, 0] = 0.0
+    pos[:, 2, 0] = 0.15 * t
+    pos[:, 3, 0] = 10.0
+    goals = np.array([[4.0, 0.0], [5.0, 0.0], [20.0, 0.0], [10.05, 0.0]])
+    near = np.zeros((K, 4), bool)
+    near[:, 0] = True
+    near[:, 3] = True
+    stalled, side, _ = _history(pos, goals, near)
+    assert not side.any()  # resolution off
+    # robot 0 last improved by >= 0.2 m at t = 1.0 (x = 1.0); stalled from t = 3.0 on
+    first = int(np.argmax(stalled[:, 0]))
+    assert t[first] == pytest.approx(3.0)
+    assert stalled[first:, 0].all() and not stalled[:first, 0].any()
+    assert not stalled[:, 1].any()  # nobody near: waiting is not a stall
+    assert not stalled[:, 2].any()  # slow progress is progress
+    assert not stalled[:, 3].any()  # at its goal (within stall_progress_m)
+    n, stalled_s, side_s = dl.stall_summary(stalled, side, DT)
+    assert list(n) == [1, 0, 0, 0]
+    assert stalled_s[0] == pytest.approx(DT * (K - first))
+    assert side_s.sum() == 0
+
+
+def test_a_new_goal_restarts_the_clock_and_a_stall_starts_a_sidestep():
+    K = 40
+    pos = np.zeros((K, 1, 2))
+    goals = np.zeros((K, 1, 2))
+    goals[:, 0] = [3.0, 0.0]
+    goals[20:, 0] = [0.0, 3.0]  # a new goal at step 20
+    near = np.ones((K, 1), bool)
+    stalled, _, _ = _history(pos, goals, near)
+    # stalled 2 s after each restart of the clock: steps 16..19, then 36..
+    assert list(np.nonzero(stalled[:, 0])[0]) == [16, 17, 18, 19, 36, 37, 38, 39]
+    prm = dl.default_params(enabled=True, hold=1.0)
+    stalled, side, ds = _history(pos[:20], goals[:20], near[:20], prm)
+    assert stalled[16, 0] and side[16, 0] and side[16:20, 0].all()
+    # the sub-goal: 1 m at 60 deg to the right of the goal direction (+x): right is -y
+    right60 = np.array([np.cos(np.pi / 3), -np.sin(np.pi / 3)])
+    np.testing.assert_allclose(np.asarray(ds.sub)[0], right60, atol=1e-12)
+    # planned to with a rest end (a fully defined end state at v = 0)
+    gp, gv, rest = dl.planning_goals(ds, jnp.array([[3.0, 0.0]]), jnp.array([[1.0, 0.0]]),
+                                     jnp.array([False]))
+    np.testing.assert_allclose(np.asarray(gp)[0], right60, atol=1e-12)
+    assert np.all(np.asarray(gv) == 0.0) and bool(rest[0])
+
+
+def test_right_of_is_clockwise_seen_from_above():
+    np.testing.assert_allclose(dl.right_of(jnp.array([1.0, 0.0])), [0.0, -1.0])
+    np.testing.assert_allclose(dl.right_of(jnp.array([0.0, 1.0, 0.5])), [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(dl.right_of(jnp.array([0.0, 0.0, 1.0])), [1.0, 0.0, 0.0])
+
+
+def test_parked_robots_and_the_makespan_bound():
+    R = 6
+    t = DT * np.arange(R)
+    pos = np.zeros((R, 2, 2))
+    vel = np.zeros((R, 2, 2))
+    point = np.zeros((R, 2, 2))
+    moved = np.zeros((R, 2), bool)
+    # robot 0 at rest beside its occupied goal from replan 2 on; robot 1 likewise, but
+    # its goal is freed at replan 4 (and it does not go on)
+    moved[2:, 0] = True
+    moved[2:4, 1] = True
+    vel[:2, :, 0] = 1.0
+    last = np.ones(R, bool)
+    parked, at = mt.parked_robots(t, pos, vel, moved, point, last, 0.1, 0.1)
+    assert list(parked) == [True, False]
+    assert at[0] == pytest.approx(t[2]) and np.isnan(at[1])
+    # not at rest, or too far from the free point: not parked
+    vel2 = vel.copy()
+    vel2[:, 0, 0] = 0.5
+    assert not mt.parked_robots(t, pos, vel2, moved, point, last, 0.1, 0.1)[0][0]
+    assert not mt.parked_robots(t, pos + 0.2, vel, moved, point, last, 0.1, 0.1)[0][0]
+    # D / v + v / a: 3-4-5 legs
+    b = mt.makespan_bound(np.zeros((1, 2)), np.array([[[3.0, 4.0], [3.0, 0.0]]]), [2.0], [4.0])
+    assert b == pytest.approx(9.0 / 2.0 + 0.5)
+
+
+# ------------------------------------------------------------------ closed loop, planar
+
+SWAP_R = 4.0  # m: four ground robots on a circle swap through its centre, rest to rest
+
+
+def _fleet(starts, goals, deadlock, frozen=-1):
+    from jaxplan.config import build_scenario, parse_config
+    from jaxplan.experiment import fleet_params, structures, task_of
+
+    doc = {"name": "swap", "sim": {"duration_s": 24.0},
+           "planner": {"deadlock": deadlock, "max_iters": 30},
+           # the faulty channel without faults (one program for every test here); robot
+           # `frozen` frozen from the start
+           "faults": {"enabled": True, "frozen_robot": frozen, "frozen_at_s": 0.0},
+           "robots": [{"vehicle": "ground", "start": list(s), "goal": list(g),
+                       "end_state": "rest"} for s, g in zip(starts, goals, strict=True)]}
+    cfg = parse_config(doc)
+    sc = build_scenario(cfg)
+    return cfg, sc, structures(cfg), fleet_params(cfg, sc), task_of(cfg, sc)
+
+
+def _loop(fp, task, structure, steps, edit=None):
+    """Replan periods from the start, one compiled period per call (the program of
+    ``jaxplan run``, shared by every test here); ``edit(k, task) -> task`` may change the
+    task between periods (same shapes: no recompile).  Returns (final state, records)."""
+    from jaxplan.experiment import step_runner
+    from jaxplan.rollout import initial_state
+
+    st = initial_state(task, structure)
+    fn = step_runner(structure)
+    recs = []
+    for k in range(steps):
+        if edit is not None:
+            task = edit(k, task)
+        st, rec = fn(fp, task, st)
+        recs.append(rec)
+    return st, jax.tree.map(lambda *x: np.stack([np.asarray(u) for u in x]), *recs)
+
+
+def _swap():
+    ang = np.pi / 4 + np.pi / 2 * np.arange(4)
+    starts = SWAP_R * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    return starts, -starts
+
+
+@pytest.fixture(scope="module")
+def swap_runs():
+    """The exactly symmetric 4-robot planar swap, without and with the sidestep (one
+    compiled replan period: the resolution is a traced switch)."""
+    from jaxplan.experiment import compute_metrics
+
+    starts, goals = _swap()
+    out = {}
+    for mode in ("off", "sidestep"):
+        cfg, sc, structure, fp, task = _fleet(starts, goals, mode)
+        final, recs = _loop(fp, task, structure, structure.steps)
+        metrics, _ = compute_metrics(cfg, sc, recs, final, np.zeros(0))
+        out[mode] = metrics
+    return out
+
+
+def test_planar_swap_deadlocks_without_the_sidestep(swap_runs):
+    m = swap_runs["off"]
+    assert not m["success"] and m["collisions"] == 0
+    assert not any(r["reached"] for r in m["per_robot"])
+    stalled = [r for r in m["per_robot"] if r["stalls"] >= 1 and r["stalled_s"] > 10.0]
+    assert len(stalled) >= 2, m["per_robot"]
+    assert m["sidestep_s"] == 0
+
+
+def test_planar_swap_succeeds_with_the_sidestep(swap_runs):
+    m = swap_runs["sidestep"]
+    assert m["success"], [r["reached"] for r in m["per_robot"]]
+    assert m["collisions"] == 0 and m["min_separation_ratio"] > 1.0
+    assert m["stalls"] >= 1 and m["sidestep_s"] > 0
+    bound = 2 * SWAP_R / 2.0 + 2.0 / 4.0
+    assert m["makespan_over_bound"] == pytest.approx(m["makespan_s"] / bound)
+
+
+def test_parked_robot_goes_on_when_its_goal_is_freed():
+    """Robot 0, frozen, sits on robot 1's goal; robot 1 parks beside it; at 6 s robot 0
+    comes back to life and leaves for its own goal; robot 1 then goes on to its goal.
+    (Two more robots wait far off, so that the shapes are the swap's: the same compiled
+    period.)"""
+    from jaxplan.config import parse_config  # noqa: F401  (shapes as in _fleet)
+    from jaxplan.experiment import compute_metrics
+
+    starts = np.array([[0.0, 0.0], [3.0, 0.0], [20.0, 0.0], [20.0, 5.0]])
+    goals = np.array([[0.0, -4.0], [0.0, 0.0], [20.0, 0.0], [20.0, 5.0]])
+    cfg, sc, structure, fp, task = _fleet(starts, goals, "sidestep", frozen=0)
+    leave = int(6.0 / DT)
+
+    def edit(k, task):  # robot 0 unfreezes at `leave`
+        if k == leave:
+            return task._replace(faults=task.faults._replace(
+                frozen=jnp.zeros_like(task.faults.frozen)))
+        return task
+
+    final, recs = _loop(fp, task, structure, leave)
+    early, _ = compute_metrics(cfg, sc, recs, final, np.zeros(0))
+    assert early["per_robot"][1]["parked"] and not early["per_robot"][1]["reached"]
+    assert early["parked"] == 1 and early["success"] and early["collisions"] == 0
+    assert early["per_robot"][1]["stalls"] == 0  # parked beside an occupied goal: no stall
+    final, recs = _loop(fp, task, structure, structure.steps, edit)
+    assert bool(np.asarray(final.reached)[1, 0])  # it went on to its goal
+    late, _ = compute_metrics(cfg, sc, recs, final, np.zeros(0))
+    assert late["collisions"] == 0
+    assert late["per_robot"][1]["reached"] and not late["per_robot"][1]["parked"]
+
+
+# ----------------------------------------------------------------- config and generators
+
+
+def test_ground_robots_and_the_antipodal_circle():
+    from jaxplan.config import ConfigError, build_scenario, parse_config
+
+    cfg = parse_config({"scenario": {"kind": "antipodal_circle", "count": 6,
+                                     "vehicles": ["ground"]}})
+    assert cfg.dim == 2
+    sc = build_scenario(cfg)
+    assert sc.start.shape == (6, 2) and np.all(sc.radius == 0.3)
+    np.testing.assert_allclose(np.linalg.norm(sc.start, axis=1), 4.0)
+    np.testing.assert_allclose(sc.goal, -sc.start, atol=1e-12)  # exactly antipodal
+    ang = np.sort(np.mod(np.arctan2(sc.start[:, 1], sc.start[:, 0]), 2 * np.pi))
+    np.testing.assert_allclose(np.diff(ang), np.pi / 3, atol=1e-12)
+    jit = build_scenario(parse_config({"scenario": {
+        "kind": "antipodal_circle", "count": 6, "dim": 3, "angle_jitter_deg": 2.0}}))
+    assert np.all(jit.start[:, 2] == 2.0)
+    with pytest.raises(ConfigError, match="scenario.vehicles: 'ground' is a ground robot"):
+        parse_config({"scenario": {"kind": "antipodal_circle", "count": 6, "dim": 3,
+                                   "vehicles": ["ground"]}})
+    with pytest.raises(ConfigError, match=r"robots\[0\].vehicle: 'ground'"):
+        parse_config({"robots": [{"vehicle": "ground", "start": [0, 0, 1], "goal": [1, 0, 1]}]})
+    with pytest.raises(ConfigError, match="planner.deadlock"):
+        parse_config({"planner": {"deadlock": "yield"}, "scenario": {
+            "kind": "antipodal_circle", "count": 2, "vehicles": ["ground"]}})
