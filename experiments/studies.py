@@ -131,7 +131,7 @@ DEFAULT_NOTES = {
     "faults": "Each fault of `[faults]` alone, default settings. Success excepts the frozen "
               "robot; a collision with it still counts.",
     "deadlock": "Each fleet without (`deadlock = \"off\"`: detection only) and with the "
-                "sidestep (the default). Stalls: stall onsets over all runs; stalled: robot-"
+                "sidestep. Stalls: stall onsets over all runs; stalled: robot-"
                 "seconds stalled; T/bound: makespan over max_i(D_i / v_max + v_max / a_max), "
                 "median and max over the successful runs; peak speed: the largest of any run.",
     "worlds": "Success also requires no robot body inside an obstacle or outside the "
