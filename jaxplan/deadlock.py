@@ -137,7 +137,11 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near):
     best = jnp.where(side, d, best)
     since = jnp.where(side, 0.0, since)
     sub = jnp.where(side[:, None], sidestep_goal(p, goal_p, prm), p)
-    new = DeadlockState(goal_p, best, since, left, sub, ds.occupied)
+    # no NaN is carried: a non-finite position or goal keeps the previous entries
+    fin = lambda x, old: jnp.where(jnp.isfinite(x), x, jnp.where(jnp.isfinite(old), old, 0.0))
+    sub = fin(sub, ds.sub)
+    goal_kept = fin(goal_p, ds.goal)
+    new = DeadlockState(goal_kept, best, since, left, sub, ds.occupied)
     return new, stalled, side, started
 
 

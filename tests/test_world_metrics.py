@@ -330,7 +330,7 @@ def test_metrics_json_world_keys_on_the_tiny_run(tiny_run):
     pieces in a world with a sphere on robot 2's straight line: a contact, and no
     success."""
     from jaxplan.experiment import compute_metrics
-    from jaxplan.sweep import SweepPoint, _csv_row, _ReachState
+    from jaxplan.sweep_batch import SweepPoint, _ReachState, csv_row
     from jaxplan.sweep_csv import COLUMNS
 
     m = tiny_run.metrics
@@ -360,6 +360,6 @@ def test_metrics_json_world_keys_on_the_tiny_run(tiny_run):
     assert m2["min_obstacle_clearance_m"] <= -0.3 - a["radius"][2] + 1e-12
     assert m2["worst_obstacle"]["obstacle"] == 0
     assert m2["per_robot"][2]["min_obstacle_clearance_m"] <= -0.3 - a["radius"][2] + 1e-12
-    row = _csv_row(SweepPoint(1.0, 1.0, "tiny", 0), m2, W)
+    row = csv_row(SweepPoint(1.0, 1.0, "tiny", 0), m2, W)
     assert set(row) <= set(COLUMNS)
     assert row["success"] == "0" and int(row["obstacle_collisions"]) >= 1
