@@ -212,6 +212,7 @@ def local_rows(engines_env):
     return rows
 
 
+@pytest.mark.slow  # ~45 s on 2 cores (a sweep compiled in-process): `make test-slow`
 def test_two_shards_and_a_merge_give_the_local_rows(engines_env, local_rows):
     from jaxplan.sweep import sweep_points
 
@@ -257,6 +258,7 @@ def _data_lines(path: Path) -> int:
     return max(0, path.read_bytes().count(b"\n") - 1) if path.exists() else 0
 
 
+@pytest.mark.slow  # ~50 s on 2 cores (a local Ray instance, three workers): `make test-slow`
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds workers in /proc")
 def test_ray_engine_with_a_worker_killed_mid_sweep_gives_the_local_rows(engines_env,
                                                                          local_rows):
