@@ -176,6 +176,7 @@ def swap_runs():
     return out
 
 
+@pytest.mark.slow  # a planar closed loop compiled (~25 s on 2 cores): `make test-slow`
 def test_planar_swap_deadlocks_without_the_sidestep(swap_runs):
     m = swap_runs["off"]
     assert not m["success"] and m["collisions"] == 0
@@ -185,6 +186,7 @@ def test_planar_swap_deadlocks_without_the_sidestep(swap_runs):
     assert m["sidestep_s"] == 0
 
 
+@pytest.mark.slow  # a planar closed loop compiled (~25 s on 2 cores): `make test-slow`
 def test_planar_swap_succeeds_with_the_sidestep(swap_runs):
     m = swap_runs["sidestep"]
     assert m["success"], [r["reached"] for r in m["per_robot"]]
@@ -194,6 +196,7 @@ def test_planar_swap_succeeds_with_the_sidestep(swap_runs):
     assert m["makespan_over_bound"] == pytest.approx(m["makespan_s"] / bound)
 
 
+@pytest.mark.slow  # a planar closed loop compiled (~25 s on 2 cores): `make test-slow`
 def test_parked_robot_goes_on_when_its_goal_is_freed():
     """Robot 0, frozen, sits on robot 1's goal; robot 1 parks beside it; at 6 s robot 0
     comes back to life and leaves for its own goal; robot 1 then goes on to its goal.
