@@ -5,6 +5,7 @@ import tomllib
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxplan import experiment as ex
 from jaxplan.config import build_scenario, parse_config
@@ -86,6 +87,7 @@ count = 8
 """
 
 
+@pytest.mark.slow  # a closed loop with max_neighbors compiled (~29 s on 2 cores)
 def test_run_with_neighbors_is_finite_and_follows_multipliers():
     cfg = parse_config(tomllib.loads(BOX.format(K=3)), source="box_k.toml")
     sc = build_scenario(cfg)

@@ -243,6 +243,7 @@ def test_rerun_skips_finished_rows(sweep_env, uninterrupted):
     assert (out / "sweep.csv").read_bytes() == before
 
 
+@pytest.mark.slow  # a sweep child killed and resumed (~32 s on 2 cores): `make test-slow`
 def test_sigkill_then_resume_gives_the_same_rows(sweep_env, uninterrupted):
     d, cfg, env = sweep_env
     whole, _ = uninterrupted
