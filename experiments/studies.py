@@ -307,27 +307,26 @@ def _deadlock_study(a) -> tuple[str, dict]:
 # ---------------------------------------------------------------------------------------
 
 
+def _only(a, choices: tuple[str, ...]) -> tuple[str, ...]:
+    """``choices`` restricted to ``--only`` (in their order); an unknown name exits."""
+    if not a.only:
+        return choices
+    unknown = [k for k in a.only if k not in choices]
+    if unknown:
+        raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
+                         f"{', '.join(choices)}")
+    return tuple(n for n in choices if n in a.only)
+
+
 def _paper_study(a) -> tuple[str, dict]:
-    names = PAPER
-    if a.only:
-        unknown = [k for k in a.only if k not in PAPER]
-        if unknown:
-            raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
-                             f"{', '.join(PAPER)}")
-        names = tuple(n for n in PAPER if n in a.only)
+    names = _only(a, PAPER)
     results = {}
     t0 = time.perf_counter()
     for name in names:
         for backend in a.backends:
-            out = a.out / "paper" / f"{name}__{backend}"
-            mpath = out / "metrics.json"
-            if not mpath.exists():  # metrics.json marks a complete run directory
-                cmd = [sys.executable, "-m", "jaxplan", "run", str(ROOT / "paper" / f"{name}.toml"),
-                       "--out", str(out), "--backend", backend, "--quiet", "--no-figures"]
-                print(f"[{time.perf_counter() - t0:7.0f} s] {name} / {backend} -> {out}",
-                      flush=True)
-                subprocess.run(cmd, check=True)
-            results[f"{name} | {backend}"] = json.loads(mpath.read_text())
+            results[f"{name} | {backend}"] = _run_once(
+                ROOT / "paper" / f"{name}.toml", a.out / "paper" / f"{name}__{backend}",
+                backend, t0)
     f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)  # noqa: E731
     lines = ["| scenario | backend | success | reached | collisions | min d/rho | makespan (s) "
              "| peak speed / v_max | replan ms (median / p95) | tracking cm (rms / max) "
@@ -369,13 +368,7 @@ def _run_once(config: Path, out: Path, backend: str, t0: float) -> dict:
 
 
 def _worlds_study(a) -> tuple[str, dict]:
-    names = WORLDS
-    if a.only:
-        unknown = [k for k in a.only if k not in WORLDS]
-        if unknown:
-            raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
-                             f"{', '.join(WORLDS)}")
-        names = tuple(n for n in WORLDS if n in a.only)
+    names = _only(a, WORLDS)
     t0 = time.perf_counter()
     results = {}
     f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)  # noqa: E731

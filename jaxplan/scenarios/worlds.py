@@ -31,6 +31,7 @@ jaxplan/scenarios/generators.py.  3-D, on the ground (z >= 0); deterministic for
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import ClassVar
@@ -226,8 +227,6 @@ class RandomObstaclesParams(GeneratorParams):
     end_state: EndState = None
 
     def resolved(self) -> RandomObstaclesParams:
-        import dataclasses
-
         return dataclasses.replace(self, min_spacing=self.min_spacing or round(
             default_spacing(self.vehicles), 6))
 
