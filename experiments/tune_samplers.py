@@ -18,9 +18,7 @@ import json
 import time
 from pathlib import Path
 
-import jax
-
-from jaxplan.cli import compile_cache_dir
+from jaxplan.cli import _use_compile_cache
 from jaxplan.config import load_config
 from jaxplan.tune import run_tune
 
@@ -33,10 +31,7 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=16)
     ap.add_argument("--out", type=Path, default=Path("tunes/samplers"))
     args = ap.parse_args()
-    cache = compile_cache_dir()
-    if cache is not None:
-        cache.mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(cache))
+    _use_compile_cache(False)  # as `jaxplan tune` does: ~/.cache/jaxplan/xla
     base = load_config(CONFIG)
     small = dataclasses.replace(
         base, tune=dataclasses.replace(base.tune, seeds=(0,), holdout_seeds=(),

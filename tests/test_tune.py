@@ -298,6 +298,19 @@ def test_sigkill_then_resume_loses_only_the_trials_in_flight(tmp_path):
     assert again == {t.number: t.params for t in failed} and len(failed) == 3
 
 
+def test_per_run_weights_are_the_traced_ones_only():
+    """sweep_batch's per-run weights replace [planner] settings that are traced inputs
+    of the batch program; anything else (it would change the program) is refused."""
+    from jaxplan.sweep_batch import with_weights
+
+    cfg = _parse(TUNE_TABLE)
+    w = with_weights(cfg, {"k_t": 3.5, "safety_margin_m": 0.1, "q_dynm": 2.0})
+    assert (w.planner.k_t, w.planner.safety_margin_m, w.planner.q_dynm) == (3.5, 0.1, 2.0)
+    assert w.planner.q_obs == cfg.planner.q_obs and with_weights(cfg, {}) is cfg
+    with pytest.raises(ValueError, match="not traced weights: degree, max_iters"):
+        with_weights(cfg, {"max_iters": 3, "degree": 7})
+
+
 def test_pareto_front_by_hand():
     import numpy as np
 
