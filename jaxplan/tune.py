@@ -73,7 +73,7 @@ from jaxplan.sweep_batch import BatchRunner, SweepPoint
 from jaxplan.sweep_csv import SweepError
 from jaxplan.world import static_rows
 
-__all__ = ["STUDY_NAME", "TuneError", "TuneResult", "run_tune", "trial_stats"]
+__all__ = ["STUDY_NAME", "TuneError", "TuneResult", "evaluate", "run_tune", "trial_stats"]
 
 STUDY_NAME = "jaxplan_tune"
 _FREE_TABLES = ("sweep", "name", "description")
@@ -459,6 +459,24 @@ def _holdout(config: Config, runner: _Runner, labels, best: dict, out: Path,
     atomic_write_text(out / "holdout.csv", buf.getvalue())
     result["key"] = key
     return result
+
+
+def evaluate(config: Config, settings: dict[str, dict[str, float]], seeds, *,
+             batch_size: int | None = None, echo: Callable[[str], None] | None = None
+             ) -> dict[str, list[dict]]:
+    """Run weight settings on the config's [tune] scenarios and the given seeds, as
+    the study runs its trials: {setting name: the sweep.csv rows of its runs, scenario
+    by scenario, seed by seed}.  ``settings``: {name: {weight: value}} (any of
+    TUNABLE_WEIGHTS; the others from [planner]).  Summarize with :func:`trial_stats`."""
+    if config.tune is None:
+        raise TuneError(f"{config.source or config.name}: no [tune] table")
+    sources = _sources(config)
+    runner = _Runner(config, sources, _batch_size(batch_size), echo or (lambda s: None))
+    labels = list(sources)
+    runs = [r for w in settings.values() for r in _runs(w, labels, seeds)]
+    rows = runner.run(runs)
+    per = len(labels) * len(tuple(seeds))
+    return {name: rows[i * per:(i + 1) * per] for i, name in enumerate(settings)}
 
 
 def _read_json(path: Path) -> dict | None:
