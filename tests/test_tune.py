@@ -265,7 +265,7 @@ def test_a_directory_made_with_another_config_is_refused(interrupted_and_resumed
         run_tune(other, out, progress=False, echo=None)
 
 
-@pytest.mark.slow  # a `jaxplan tune` child SIGKILLed and resumed (~30 s): `make test-slow`
+@pytest.mark.slow  # a `jaxplan tune` child SIGKILLed, another resuming (~100 s): make test-slow
 def test_sigkill_then_resume_loses_only_the_trials_in_flight(tmp_path):
     """`jaxplan tune` in a child, SIGKILLed once its second batch of 3 trials is in
     flight, then resumed in another child."""
