@@ -17,7 +17,7 @@ system's C compiler instead: for the two-segment NLP with 9 other robots gcc -O1
 not finished compiling it after 5 minutes and 3.6 GB, so the SX virtual machine is what
 is measured).
 
-tests/test_reference_casadi.py checks that CasADi's objective and constraints equal
+tests/test_solver.py checks that CasADi's objective and constraints equal
 jaxplan's at random points (to 1e-10 relative) and that IPOPT and jaxplan's solver
 reach the same optimum.
 """

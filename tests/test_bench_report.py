@@ -76,3 +76,51 @@ def test_bench_command_takes_a_markdown_path(tmp_path, monkeypatch):
     assert json.loads(js.read_text())["batch64x10"]["ms"] == 43.4
     write_markdown(out, {"sim": SIM})  # overwritten whole
     assert "## Solver" not in out.read_text() and "7.4x" in out.read_text()
+
+
+def _kind(warm_ms, ipopt_warm, algo_warm, gap_min, n_x):
+    ref = lambda gmin: {"rel_gap_min": gmin, "rel_gap_max": 3e-11, "abs_rel_gap_max": abs(gmin),
+                        "pairs_gap_over_1e6": int(abs(gmin) > 1e-6), "pairs": 50,
+                        "jax_max_violation": 0.0, "ref_max_violation": 2e-9}
+    return {
+        "nlp": {"n_x": n_x, "segments": 2 if n_x == 16 else 1,
+                "n_coast_samples": 8 if n_x == 16 else 0},
+        "fleet10": {"cold_ms": 1.7 * warm_ms, "warm_ms": warm_ms, "warm_conv": 1.0,
+                    "warm_iters_max": 9, "cpu_per_wall": 0.99},
+        "ipopt10": {"cold_ms": 812.0, "warm_ms": ipopt_warm, **ref(gap_min)},
+        "slsqp10": {"cold_ms": 900.0, "warm_ms": 777.0, "cold_algorithm_ms": 95.0,
+                    "warm_algorithm_ms": algo_warm, "iterations_or_evals_median": 41.0,
+                    **ref(-2e-12)},
+        "ratio_vs_ipopt_warm": ipopt_warm / warm_ms, "ratio_vs_ipopt_cold": 812 / (1.7 * warm_ms),
+        "ratio_vs_slsqp_warm": 777 / warm_ms, "ratio_vs_slsqp_cold": 900 / (1.7 * warm_ms),
+        "ratio_vs_slsqp_algorithm_warm": algo_warm / warm_ms,
+        "ratio_vs_slsqp_algorithm_cold": 95 / (1.7 * warm_ms), "cold_over_warm": 1.7,
+        "repeats": 3, "warm_replans": 4, "loadavg_1min": 1.3,
+        "whole_machine": {"fleet10": {"warm_ms": 0.8 * warm_ms}, "ratio_vs_ipopt_warm": 41.5,
+                          "ratio_vs_slsqp_algorithm_warm": 6.25, "workers": 2},
+    }
+
+
+def test_the_product_table_states_each_target_and_why_it_is_missed():
+    prod = _kind(6.4, 640.0, 48.0, -3.1e-5, 16)
+    prod["fleet100"] = {"warm_ms": 61.0, "warm_conv": 1.0, "warm_iters_median": 4.0,
+                        "warm_iters_max": 23, "warm_iters_sum_per_replan": 520.0,
+                        "warm_ms_per_lane_iteration": 0.117}
+    paper = _kind(2.0, 300.0, 44.0, -1e-12, 7)
+    page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
+                    machine="m", commit="c", date="d")
+    rows = {ln.split(" | ")[0]: ln for ln in page.splitlines() if ln.startswith("| ")}
+    warm = rows["| JAX, 10-robot replan, warm (median of the replans' medians)"]
+    assert "6.40 ms" in warm and "2.00 ms" in warm
+    assert "<= 5 ms: **not met**: 6.40 ms on one core at load average 1.3" in warm
+    assert "100.0x" in rows["| IPOPT (CasADi, SX derivatives), 10 NLPs one after another, "
+                            "warm / cold"] and ">= 10x warm: met" in page
+    slsqp = rows["| NLopt SLSQP, warm: total / callbacks taken out"]
+    assert "7.5x" in slsqp and "**not met**: 7.5x: SLSQP's own work is 4.8 ms per NLP" in slsqp
+    gap = rows["| objective gap (JAX - ref) / max(1, abs(ref)), every pair (negative: JAX lower)"]
+    assert "1 of 50 beyond 1e-6" in gap and "JAX ended lower by up to 3.1e-05" in gap
+    assert "cold <= 2x warm: met" in page and "no worse: met" in page
+    big = rows["| 100 robots, every other robot in every NLP, warm (whole machine)"]
+    assert "61.0 ms" in big and "median 4, max 23" in big and "117 us" in big
+    assert "<= 50 ms: **not met**: 61.0 ms" in big
+    assert "41.5x / 6.2x (references on 2 processes)" in page
