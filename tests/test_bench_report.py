@@ -124,3 +124,22 @@ def test_the_product_table_states_each_target_and_why_it_is_missed():
     assert "61.0 ms" in big and "median 4, max 23" in big and "117 us" in big
     assert "<= 50 ms: **not met**: 61.0 ms" in big
     assert "41.5x / 6.2x (references on 2 processes)" in page
+
+
+def test_the_readme_benchmark_table_is_the_generated_one():
+    """README's benchmark table is copied from docs/BENCHMARKS.md (what `make bench`
+    writes), row for row, not typed: every row of the table under its `make bench` line
+    is a line of that page."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text().splitlines()
+    page = set((root / "docs" / "BENCHMARKS.md").read_text().splitlines())
+    start = next(i for i, ln in enumerate(readme) if ln.startswith("`make bench`"))
+    rows = []
+    for ln in readme[start + 2:]:
+        if not ln.startswith("|"):
+            break
+        rows.append(ln)
+    assert len(rows) >= 5
+    assert [r for r in rows if r not in page] == []

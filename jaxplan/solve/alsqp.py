@@ -266,7 +266,8 @@ def _evaluate(st: State, lane: Lane, structure: NLPStructure, s: SolverSettings)
     # the same x along the same direction (so the lane stops: LINE_SEARCH_FAILED); a lane
     # whose violation hardly shrinks over several updates in a row, however the penalty
     # and multipliers grow, cannot become feasible from here (INFEASIBLE)
-    hardly = (viol > s.tol_feasibility) & (viol > s.infeasible_shrink * st.viol_ref)
+    hardly = (viol > s.tol_feasibility) & (viol > s.infeasible_shrink * st.viol_ref) & (
+        st.mu >= s.infeasible_penalty)
     stalls = jnp.where(upd, jnp.where(hardly, st.stalls + 1, 0), st.stalls).astype(jnp.int32)
     infeasible = upd & (stalls >= s.infeasible_updates)
     why = jnp.where(failed & ~changed, LINE_SEARCH_FAILED, jnp.where(infeasible, INFEASIBLE, 0)

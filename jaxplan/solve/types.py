@@ -39,9 +39,11 @@ class SolverSettings(NamedTuple):
     kink_overshoot: float = 1.1  # backtracking past an AL branch crossing (step_lanes)
     reg: float = 1e-13  # eigenvalue floor / max|eigenvalue| (direction)
     # early infeasibility: a lane stops INFEASIBLE after this many multiplier updates in
-    # a row that each left the violation above infeasible_shrink x the previous one's
+    # a row, at a penalty of at least infeasible_penalty, that each left the violation
+    # above infeasible_shrink x the previous one's
     infeasible_updates: int = 3
     infeasible_shrink: float = 0.9
+    infeasible_penalty: float = 1e6
 
 
 class Solution(NamedTuple):
