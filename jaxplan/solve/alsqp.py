@@ -47,10 +47,10 @@ Status codes (``Solution.status``, int32):
     1 MAX_ITERS      iteration budget spent, constraints satisfied to tolerance.
     2 NON_FINITE     a non-finite value appeared; x = x0 (finite), traj finite.
     3 INFEASIBLE     violation > tol_feasibility when the budget was spent, or
-                     detected early: ``infeasible_updates`` multiplier updates in a row
-                     each left the violation above ``infeasible_shrink`` x the previous
-                     update's (e.g. a start inside another robot's radius, or a goal
-                     occupied).
+                     detected early: ``infeasible_updates`` multiplier updates in a row,
+                     at a penalty >= ``infeasible_penalty``, each left the violation above
+                     ``infeasible_shrink`` x the previous update's (e.g. a start inside
+                     another robot's radius, or a goal occupied).
     4 LINE_SEARCH_FAILED  ``max_backtracks`` trials found no Armijo step and the
                      multiplier update left L_A unchanged, so the next iteration would
                      repeat the same search: the lane stops at its iterate (its last
@@ -266,6 +266,8 @@ def _evaluate(st: State, lane: Lane, structure: NLPStructure, s: SolverSettings)
     # the same x along the same direction (so the lane stops: LINE_SEARCH_FAILED); a lane
     # whose violation hardly shrinks over several updates in a row, however the penalty
     # and multipliers grow, cannot become feasible from here (INFEASIBLE)
+    # (only at a large penalty: lanes of a 100-robot crossing that converge hardly
+    # shrink their violation over several updates at penalties of 1e3-1e4)
     hardly = (viol > s.tol_feasibility) & (viol > s.infeasible_shrink * st.viol_ref) & (
         st.mu >= s.infeasible_penalty)
     stalls = jnp.where(upd, jnp.where(hardly, st.stalls + 1, 0), st.stalls).astype(jnp.int32)
