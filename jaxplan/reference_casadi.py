@@ -17,9 +17,16 @@ system's C compiler instead: for the two-segment NLP with 9 other robots gcc -O1
 not finished compiling it after 5 minutes and 3.6 GB, so the SX virtual machine is what
 is measured).
 
-tests/test_solver.py checks that CasADi's objective and constraints equal
-jaxplan's at random points (to 1e-10 relative) and that IPOPT and jaxplan's solver
-reach the same optimum.
+The static rows (obstacles and workspace faces, NLPParams.static) are parameters like
+the others: the same tracing covers them.  Primitives that only move elements
+(reshape, broadcast, slice, ...) and those on numbers only are evaluated with numpy
+where they are the common ones, so that building the SX graph compiles next to no XLA
+program.
+
+tests/test_world.py checks, on NLPs with static rows (a pillar and the ground) and
+another robot, that CasADi's objective and constraints equal jaxplan's at random
+points (to 1e-10 relative) and that IPOPT and jaxplan's solver reach the same optimum;
+tests/test_solver.py (slow) the same on NLPs with up to nine others and no static rows.
 """
 
 from __future__ import annotations
@@ -91,10 +98,47 @@ def _structural(prim, params, args):
         sx = _as_sx(a)
         n = _size(_shape(a))
         cols.append(sx)
-        idx_args.append(jnp.asarray(np.arange(off, off + n, dtype=np.int32).reshape(_shape(a))))
+        idx_args.append(np.arange(off, off + n, dtype=np.int64).reshape(_shape(a)))
         off += n
-    idx = np.asarray(prim.bind(*idx_args, **params))
+    idx = _move(prim, params, idx_args)
+    if idx is None:
+        idx = np.asarray(prim.bind(*[jnp.asarray(x, jnp.int32) for x in idx_args], **params))
     return _Sym(_take(ca.vertcat(*cols), idx), tuple(idx.shape))
+
+
+def _move(prim, params, arrays):
+    """The structural primitive applied to integer arrays: in numpy where it is one of
+    the common ones (no XLA compilation per shape), else None."""
+    if not arrays:
+        return None
+    name, a = prim.name, arrays[0]
+    if name == "reshape" and params.get("dimensions") is None:
+        return a.reshape(params["new_sizes"])
+    if name == "broadcast_in_dim":
+        shape, dims = tuple(params["shape"]), tuple(params["broadcast_dimensions"])
+        expanded = [1] * len(shape)
+        for d, n in zip(dims, a.shape, strict=True):
+            expanded[d] = n
+        return np.broadcast_to(a.reshape(expanded), shape)
+    if name == "squeeze":
+        return np.squeeze(a, axis=tuple(params["dimensions"]))
+    if name == "expand_dims":
+        return np.expand_dims(a, tuple(params["dimensions"]))
+    if name == "transpose":
+        return np.transpose(a, tuple(params["permutation"]))
+    if name == "slice":
+        strides = params.get("strides") or (1,) * a.ndim
+        return a[tuple(slice(b, e, k) for b, e, k in zip(
+            params["start_indices"], params["limit_indices"], strides, strict=True))]
+    if name == "concatenate":
+        return np.concatenate(arrays, axis=params["dimension"])
+    if name == "rev":
+        return np.flip(a, axis=tuple(params["dimensions"]))
+    if name in ("copy", "copy_p"):
+        return a
+    if name == "convert_element_type":
+        return a.astype(np.dtype(params["new_dtype"]))
+    return None
 
 
 _STRUCTURAL = {"reshape", "broadcast_in_dim", "squeeze", "transpose", "slice", "concatenate",
@@ -193,7 +237,10 @@ def _select_n(pred, *cases):
 def _eval_eqn(eqn, args):
     prim, params = eqn.primitive, eqn.params
     name = prim.name
-    if not any(isinstance(a, _Sym) for a in args):  # numbers only: JAX computes it
+    if not any(isinstance(a, _Sym) for a in args):  # numbers only: numpy or JAX computes it
+        out = _move(prim, params, [np.asarray(a) for a in args])
+        if out is not None:
+            return [np.asarray(out)]
         out = prim.bind(*[jnp.asarray(a) for a in args], **params)
         return [np.asarray(o) for o in out] if prim.multiple_results else [np.asarray(out)]
     if name in ("jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call",
@@ -279,7 +326,7 @@ def _problem(structure: NLPStructure, treedef, leaf_specs):
         return nlp.objective(x, pp, structure), jnp.concatenate(
             [jnp.ravel(a) for a in jax.tree.leaves(g)])
 
-    example = [jnp.zeros(structure.n_x)] + [jnp.zeros(s, d) for s, d in leaf_specs]
+    example = [np.zeros(structure.n_x)] + [np.zeros(s, d) for s, d in leaf_specs]
     f, g = jaxpr_to_sx(fg, example, [x] + p_cols)
     return x, p, f, g
 
