@@ -25,6 +25,7 @@ Its problems come from :mod:`jaxplan.testing`.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import statistics
 import sys
@@ -37,9 +38,10 @@ import numpy as np
 import jaxplan  # noqa: F401  (float64)
 from jaxplan import planner as _planner
 from jaxplan import solve
-from jaxplan.nlp import NLPStructure
+from jaxplan.nlp import Limits, NLPStructure
 from jaxplan.reference import solve_slsqp
 from jaxplan.testing import antipodal, fleet_params, index_params
+from jaxplan.world import static_rows
 
 # ---------------------------------------------------------------------- benchmark
 DT = 0.125
@@ -132,36 +134,52 @@ WARM_STEPS = 4  # warm replans compared per fleet
 PAPER_MAX_ITERS = 60
 
 
+def _planner_setup(config, scenario=None):
+    """(structure, settings, fleet_params keywords) of the NLPs `jaxplan run` builds for
+    ``config`` (its scenario, or ``scenario``): experiment.structures and
+    experiment.fleet_params, so the static rows (the ground in 3-D, the obstacles and
+    workspace faces of a world) are the planner's.  One vehicle's radius and limits
+    (the first robot's) stand for the fleet's."""
+    from jaxplan import experiment
+    from jaxplan.config import build_scenario
+
+    sc = scenario if scenario is not None else build_scenario(config)
+    n_static = static_rows(sc.world).mask.shape[0]
+    st = experiment.structures(config, n_static=n_static).planner.nlp
+    fp = experiment.fleet_params(config, sc, n_static=n_static)
+    first = lambda a: float(np.asarray(a).reshape(-1)[0])
+    kw = dict(w=fp.weights, lim=Limits(*(first(a) for a in fp.limits)),
+              radius=first(fp.radius), t_min=float(fp.t_min),
+              prediction_weight=float(fp.prediction_weight), static=fp.static)
+    return st, fp.settings, kw
+
+
+def _product_config():
+    """The planner's defaults on two free-ended fireflies in 3-D (the default world: the
+    ground z >= 0, one static row): only the NLP's structure and parameters are used."""
+    from jaxplan.config import parse_config
+
+    robot = lambda y: {"vehicle": "firefly", "start": [0.0, y, 1.5], "goal": [4.0, y, 1.5]}
+    return parse_config({"name": "bench_product", "robots": [robot(0.0), robot(2.0)]})
+
+
+@functools.cache
 def nlp_setup(kind: str):
     """(structure, settings, fleet_params keywords) of the "product" or "paper" NLP."""
     if kind == "paper":  # the benchmark's NLP from the start (60 iterations, as then)
         return NLPStructure(), solve.SolverSettings(max_iters=PAPER_MAX_ITERS), {}
-    from jaxplan import config as C
-    from jaxplan.experiment import T_MIN
-    from jaxplan.testing import limits, weights
-    from jaxplan.vehicles import VEHICLES
-
-    st = NLPStructure(degree=C.DEFAULT_DEGREE, segments=C.DEFAULT_SEGMENTS,
-                      collision=C.DEFAULT_COLLISION, n_collision_samples=C.DEFAULT_N_SAMPLES,
-                      n_coast_samples=C.DEFAULT_COAST_SAMPLES)
-    settings = solve.SolverSettings(max_iters=C.DEFAULT_MAX_ITERS,
-                                    tol_feasibility=C.DEFAULT_TOL,
-                                    tol_complementarity=C.DEFAULT_TOL)
-    w = weights(q_dynm=C.DEFAULT_Q_DYNM, q_obs=C.DEFAULT_Q_OBS, q_lim=C.DEFAULT_Q_LIM,
-                k_t=C.DEFAULT_K_T, k_p=C.DEFAULT_K_P)
-    v = VEHICLES["firefly"]
-    kw = dict(w=w, lim=limits(v_max=v.v_max, a_max=v.a_max, j_max=v.j_max),
-              radius=v.radius + C.DEFAULT_SAFETY_MARGIN_M, t_min=T_MIN,
-              prediction_weight=C.DEFAULT_K_T / C.DEFAULT_Q_DYNM)
-    return st, settings, kw
+    return _planner_setup(_product_config())
 
 
-def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0):
+def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=None,
+                 fleet=None):
     """JAX on an M-robot fleet: the cold replan and ``steps`` warm ones, each timed
-    (median of ``reps`` calls); the cases (params, start, solution) for the references."""
-    structure, settings, kw = nlp_setup(kind)
+    (median of ``reps`` calls); the cases (params, start, solution) for the references.
+    setup: (structure, settings, keywords) instead of :func:`nlp_setup`'s; fleet:
+    (starts, goals) instead of an antipodal fleet."""
+    structure, settings, kw = setup or nlp_setup(kind)
     rng = np.random.default_rng(seed)
-    pos, goals = antipodal(M, radius_m, rng)
+    pos, goals = fleet if fleet is not None else antipodal(M, radius_m, rng)
     z = np.zeros_like(pos)
     P, idx = fleet_params(pos, z, z, goals, max_neighbors=max_neighbors, return_neighbors=True,
                           **kw)
@@ -299,6 +317,8 @@ def compare(kind: str, reps: int = 3, steps: int = WARM_STEPS, workers: int = 1)
                         warm_ms_all=[c["ms"] for c in cases[1:]], compile_s=compile_s,
                         cold_conv=conv(cases[0]), warm_conv=med([conv(c) for c in cases[1:]]),
                         cold_iters_max=int(np.max(cases[0]["sol"].iterations)),
+                        warm_lane_iters_per_replan=med([int(np.sum(c["sol"].iterations))
+                                                        for c in cases[1:]]),
                         warm_iters_max=int(max(np.max(c["sol"].iterations) for c in cases[1:])),
                         status_counts={solve.STATUS_NAMES[k]: int(sum(
                             np.sum(c["sol"].status == k) for c in cases))
@@ -382,6 +402,37 @@ def product_and_paper(quick: bool = False) -> dict:
     return out
 
 
+OBSTACLES = 20  # the world row: a random_obstacles world of this many obstacles
+
+
+def obstacles_row(reps: int = 5, steps: int = WARM_STEPS, obstacles: int = OBSTACLES) -> dict:
+    """The 10-robot warm fleet replan of the product NLP in a world with ``obstacles``
+    random obstacles (jaxplan/scenarios/worlds.py's random_obstacles, seed 0: its
+    starts, goals, arena walls and ceiling) against the same fleet in the same arena
+    without them; JAX in this process, the same repeats and warm replans for both."""
+    from jaxplan.config import build_scenario, parse_config
+
+    cfg = parse_config({"name": "bench_obstacles", "seed": 0,
+                        "scenario": {"kind": "random_obstacles", "count": 10,
+                                     "obstacles": obstacles}})
+    sc = build_scenario(cfg)
+    out = {}
+    for name, scen in (("with", sc), ("none", sc.with_world(sc.world.with_obstacles([])))):
+        setup = _planner_setup(cfg, scen)
+        structure, cases, comp, _ = _fleet_cases(
+            "product", 10, 0.0, 0, steps, reps, setup=setup,
+            fleet=(np.asarray(scen.start), np.asarray(scen.waypoints[:, -1])))
+        conv = [float(np.mean(c["sol"].status == solve.CONVERGED)) for c in cases[1:]]
+        out[name] = dict(n_static=structure.n_static, compile_s=comp, cold_ms=cases[0]["ms"],
+                         warm_ms=float(statistics.median(c["ms"] for c in cases[1:])),
+                         warm_ms_all=[c["ms"] for c in cases[1:]],
+                         warm_conv=float(np.mean(conv)),
+                         warm_iters_sum=[int(np.sum(c["sol"].iterations)) for c in cases[1:]])
+    out.update(obstacles=obstacles, repeats=reps, warm_replans=steps,
+               warm_ratio=out["with"]["warm_ms"] / out["none"]["warm_ms"])
+    return out
+
+
 def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool = True) -> dict:
     """Run every part of the benchmark (module docstring); print it unless ``echo`` is
     False; return the figures."""
@@ -422,6 +473,7 @@ def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool =
     slsqp_rate = 10 / (res["slsqp10_cold"]["ms"] / 1e3)
     rate = 640 / (ms / 1e3)
     res.update(product_and_paper(quick))
+    res["product"]["obstacles20"] = obstacles_row(*((2, 2) if quick else (5, WARM_STEPS)))
     res["batch64x10"] = dict(ms=ms, ms_min=lo, ms_max=hi, solves_per_s=rate,
                              solves_per_s_range=[640 / (hi / 1e3), 640 / (lo / 1e3)],
                              slsqp_serial_solves_per_s=slsqp_rate,
