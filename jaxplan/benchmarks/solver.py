@@ -5,9 +5,11 @@ Run:  python -m jaxplan.benchmarks.solver [--json FILE] [--quick]
 (`jaxplan bench solver` calls :func:`run`).
 
 Two NLPs (:func:`nlp_setup`): "product", the one `jaxplan run` solves with the planner's
-defaults (two quintic segments per axis, 8 coast samples, the default weights, the
-safety margin, the planner's prediction weight and iteration cap), and "paper", the
-paper's (one quintic per axis, no coast).  For each (:func:`compare`): a 10-robot
+defaults, built by experiment.structures and experiment.fleet_params as the planner
+builds it (two quintic segments per axis, 8 coast samples, the default world's ground
+z >= 0 as a static row, the default weights, the safety margin, the planner's
+prediction weight, iteration cap and tolerance), and "paper", the paper's (one quintic
+per axis, no coast, no static row).  For each (:func:`compare`): a 10-robot
 antipodal fleet's cold replan and 4 warm replans (the warm start as the planner makes
 it: the previous plan shifted and re-fitted, the previous multipliers and penalty), the
 JAX fleet solve against IPOPT and SLSQP solving the same NLPs one after another from
@@ -17,9 +19,11 @@ one XLA thread (:data:`ONE_CORE_ENV`); the whole machine against the whole machi
 in this process (its CPU devices), the references over one process per core.  Also the
 100-robot product fleet (every other robot in every NLP), warm, and the figures this
 benchmark has always had (``fleet10``, ``slsqp10_*``, ``fleet100``, ``fleet100_k``,
-``batch64x10``: the paper's NLP, the whole machine).
+``batch64x10``: the paper's NLP, the whole machine), and ``product.obstacles20``
+(:func:`obstacles_row`): the product NLP's 10-robot warm replan among 20 obstacles
+against the same fleet and arena without them.
 
-Its problems come from :mod:`jaxplan.testing`.
+Its fleets come from :mod:`jaxplan.testing` and jaxplan/scenarios/worlds.py.
 """
 
 from __future__ import annotations
