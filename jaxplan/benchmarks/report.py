@@ -2,6 +2,8 @@
 
     markdown(results, *, machine, commit, date) -> str
     write_markdown(path, results)     the same, with this machine, commit and date
+    write_readme(path, results)       README's block after README_MARK: a header line and
+                                      the product table's main rows (the page's rows)
 
 ``results`` is what `jaxplan bench all --json FILE` writes (``{"predict": ...,
 "solver": ..., "sim": ...}``; any of them may be missing); each present benchmark gets a
@@ -17,11 +19,14 @@ import platform
 import subprocess
 from pathlib import Path
 
+import numpy as np
+
 from jaxplan.fileio import atomic_write_text
 
-__all__ = ["markdown", "write_markdown"]
+__all__ = ["markdown", "readme_lines", "replace_readme_block", "write_markdown", "write_readme"]
 
-COMMAND = "make bench (jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md)"
+COMMAND = ("make bench (jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md "
+           "--readme README.md)")
 
 
 def _ms(x) -> str:
@@ -106,27 +111,29 @@ def _gap_why(*refs) -> str:
     return "; ".join(why)
 
 
-def _product(r: dict) -> list[str]:
-    """The product / paper NLP against IPOPT (CasADi) and SLSQP, with the issue's targets."""
-    if "product" not in r:
-        return []
+def _product_table(r: dict) -> tuple[list[str], dict[str, str]]:
+    """The product / paper NLP against IPOPT (CasADi) and SLSQP, with the issue's
+    targets: (the table's two header lines, its rows by key in order)."""
     kinds = [k for k in ("product", "paper") if k in r]
     head = "| measure | " + " | ".join(f"{k} NLP" for k in kinds) + " | target (product NLP) |"
-    out = [head, "|---|" + "---|" * len(kinds) + "---|"]
+    rows: dict[str, str] = {}
     pr = r["product"]
     f, ip, sq = pr["fleet10"], pr["ipopt10"], pr["slsqp10"]
     load = pr.get("loadavg_1min")
+    key = iter(["n_x", "warm", "cold", "ipopt", "slsqp", "slsqp_cold", "gap", "violation",
+                "whole_machine"])
 
     def row(what, fn, target=""):
-        out.append(f"| {what} | " + " | ".join(fn(r[k]) for k in kinds) + f" | {target} |")
+        rows[next(key)] = (f"| {what} | " + " | ".join(fn(r[k]) for k in kinds)
+                           + f" | {target} |")
 
-    row("variables n_x (segments, coast samples)",
-        lambda x: f"{x['nlp']['n_x']} ({x['nlp']['segments']}, {x['nlp']['n_coast_samples']})")
+    row("variables n_x (segments, coast samples, static rows)",
+        lambda x: f"{x['nlp']['n_x']} ({x['nlp']['segments']}, {x['nlp']['n_coast_samples']}, "
+                  f"{x['nlp'].get('n_static', 0)})")
     row("JAX, 10-robot replan, warm (median of the replans' medians)",
         lambda x: f"{_ms(x['fleet10']['warm_ms'])}, {_pct(x['fleet10']['warm_conv'])} converged, "
                   f"<= {x['fleet10']['warm_iters_max']} iterations",
-        "<= 5 ms: " + _verdict(f["warm_ms"] <= 5.0, f"{_ms(f['warm_ms'])} on one core at load "
-                                                     f"average {load:.1f}" if load else ""))
+        "<= 5 ms: " + _verdict(f["warm_ms"] <= 5.0, _warm_why(f, load)))
     row("JAX, cold (initial guesses included) / warm",
         lambda x: f"{_ms(x['fleet10']['cold_ms'])} ({x['cold_over_warm']:.2f}x warm)",
         "cold <= 2x warm: " + _verdict(pr["cold_over_warm"] <= 2.0,
@@ -167,7 +174,9 @@ def _product(r: dict) -> list[str]:
                   f"{x['ipopt10']['ref_max_violation']:.1e} / "
                   f"{x['slsqp10']['ref_max_violation']:.1e}",
         "no worse: " + _verdict(viol_ok))
-    if all("whole_machine" in r[k] for k in kinds):
+    if not all("whole_machine" in r[k] for k in kinds):
+        next(key)
+    else:
         row("the whole machine: JAX warm; ratios to IPOPT / SLSQP without callbacks",
             lambda x: f"{_ms(x['whole_machine']['fleet10']['warm_ms'])}; "
                       f"{x['whole_machine']['ratio_vs_ipopt_warm']:.1f}x / "
@@ -175,18 +184,64 @@ def _product(r: dict) -> list[str]:
                       f"(references on {x['whole_machine']['workers']} processes)")
     if "fleet100" in pr:
         g = pr["fleet100"]
-        out.append(
+        rows["fleet100"] = (
             f"| 100 robots, every other robot in every NLP, warm (whole machine) | "
             f"{_ms(g['warm_ms'])}, {_pct(g['warm_conv'])} converged; iterations per lane median "
             f"{g['warm_iters_median']:.0f}, max {g['warm_iters_max']}; "
             f"{g['warm_iters_sum_per_replan']:.0f} lane-iterations per replan at "
             f"{1e3 * g['warm_ms_per_lane_iteration']:.0f} us each |"
             + " |" * (len(kinds) - 1)
-            + " <= 50 ms: " + _verdict(g["warm_ms"] <= 50.0, f"{_ms(g['warm_ms'])}") + " |")
+            + " <= 50 ms: " + _verdict(g["warm_ms"] <= 50.0, _fleet100_why(g)) + " |")
+    if "obstacles20" in pr:
+        rows["obstacles"] = _obstacles_row(pr["obstacles20"], len(kinds))
+    return [head, "|---|" + "---|" * len(kinds) + "---|"], rows
+
+
+def _warm_why(f: dict, load) -> str:
+    why = f"{_ms(f['warm_ms'])} on one core"
+    if "warm_lane_iters_per_replan" in f:
+        n = f["warm_lane_iters_per_replan"]
+        why += (f": {n:.0f} lane-iterations per replan at {1e3 * f['warm_ms'] / n:.0f} us "
+                "each")
+    return why + (f" (load average {load:.1f})" if load else "")
+
+
+def _fleet100_why(g: dict) -> str:
+    return (f"{_ms(g['warm_ms'])}: {g['warm_iters_sum_per_replan']:.0f} lane-iterations per "
+            f"replan (median {g['warm_iters_median']:.0f} per lane) at "
+            f"{1e3 * g['warm_ms_per_lane_iteration']:.0f} us each, each lane's NLP holding "
+            "the 99 others")
+
+
+def _obstacles_row(o: dict, n_kinds: int) -> str:
+    """The 10-robot warm replan with and without the obstacles (issue #32's row)."""
+    w, n = o["with"], o["none"]
+    per = lambda x: 1e3 * x["warm_ms"] / max(1.0, float(np.median(x["warm_iters_sum"])))
+    its = lambda x: float(np.median(x["warm_iters_sum"]))
+    why = (f"{o['warm_ratio']:.2f}x: lane-iterations per replan {its(w):.0f} vs {its(n):.0f}, "
+           f"{per(w):.0f} vs {per(n):.0f} us each "
+           f"({w['n_static']} static rows vs {n['n_static']})")
+    return (f"| 10-robot warm fleet replan with {o['obstacles']} obstacles vs none (random_"
+            f"obstacles world, arena walls and ceiling in both; whole machine) | "
+            f"{_ms(w['warm_ms'])} vs {_ms(n['warm_ms'])}: {o['warm_ratio']:.2f}x, "
+            f"{_pct(w['warm_conv'])} / {_pct(n['warm_conv'])} converged |"
+            + " |" * (n_kinds - 1)
+            + " <= 1.5x: " + _verdict(o["warm_ratio"] <= 1.5, why) + " |")
+
+
+def _product(r: dict) -> list[str]:
+    """The product / paper section of the page."""
+    if "product" not in r:
+        return []
+    head, rows = _product_table(r)
+    pr = r["product"]
+    f, load = pr["fleet10"], pr.get("loadavg_1min")
     intro = ("The product's NLP is the one `jaxplan run` solves with the planner's defaults "
-             "(2 quintic segments per axis, 8 coast samples, the default weights, the safety "
-             "margin, the planner's prediction and iteration cap); the paper's is 1 segment, "
-             "no coast. A 10-robot antipodal fleet: the cold replan and "
+             "(2 quintic segments per axis, 8 coast samples, the default world's ground "
+             "z >= 0 as a static row, the default weights, the safety margin, the planner's "
+             "prediction and iteration cap: experiment.structures and fleet_params); the "
+             "paper's is 1 segment, no coast, no static row. A 10-robot antipodal fleet: the "
+             "cold replan and "
              f"{pr.get('warm_replans', '')} warm replans (the planner's warm start), each "
              f"timed {pr.get('repeats', '')} times (medians); IPOPT (CasADi, exact SX "
              "derivatives, MUMPS) and NLopt SLSQP (JAX callbacks) solve the same NLPs one "
@@ -196,7 +251,7 @@ def _product(r: dict) -> list[str]:
              + (f"; 1-minute load average {load:.1f} on this machine during the run." if load
                 else "."))
     return ["## Solver: the product's NLP against IPOPT and SLSQP (`jaxplan bench solver`)",
-            "", intro, "", *out, ""]
+            "", intro, "", *head, *rows.values(), ""]
 
 
 def _sim(r: dict) -> list[str]:
@@ -238,6 +293,47 @@ def markdown(results: dict, *, machine: str, commit: str, date: str) -> str:
         if name in results:
             lines += section(results[name])
     return "\n".join(lines)
+
+
+README_MARK = ("<!-- the header line and the table below are written by `make bench` "
+               "(jaxplan bench --readme README.md): jaxplan/benchmarks/report.py -->")
+README_ROWS = ("warm", "cold", "ipopt", "slsqp", "gap", "violation", "fleet100", "obstacles")
+
+
+def readme_lines(results: dict, *, machine: str, commit: str, date: str) -> list[str]:
+    """README's benchmark block: one header line (the command, machine, commit, date and
+    load), a blank line, the product table's main rows (each a row of the page)."""
+    r = results["solver"]
+    head, rows = _product_table(r)
+    load = r["product"].get("loadavg_1min")
+    line = (f"`make bench`; {machine}; commit {commit}; {date}"
+            + (f"; 1-minute load average {load:.1f}" if load is not None else "")
+            + ". The product's NLP against IPOPT and SLSQP, one core against one core; every "
+              "figure and how it is measured: [docs/BENCHMARKS.md](docs/BENCHMARKS.md).")
+    return [line, "", *head, *(rows[k] for k in README_ROWS if k in rows)]
+
+
+def replace_readme_block(text: str, lines: list[str]) -> str:
+    """``text`` with the block after :data:`README_MARK` (a header line, a blank line, a
+    table) replaced by ``lines``."""
+    old = text.split("\n")
+    try:
+        i = old.index(README_MARK)
+    except ValueError:
+        raise ValueError(f"no line {README_MARK!r} to write the benchmark table after") from None
+    j = i + 3  # the header line, the blank line, then the table's lines
+    while j < len(old) and old[j].startswith("|"):
+        j += 1
+    return "\n".join(old[:i + 1] + lines + old[j:])
+
+
+def write_readme(path, results: dict) -> Path:
+    """Rewrite README's benchmark block (:func:`readme_lines`) in ``path``."""
+    date = datetime.datetime.now(datetime.UTC).date().isoformat()
+    lines = readme_lines(results, machine=_machine(), commit=_commit(), date=date)
+    p = Path(path)
+    atomic_write_text(p, replace_readme_block(p.read_text(encoding="utf-8"), lines))
+    return p
 
 
 def _machine() -> str:
