@@ -179,3 +179,19 @@ def test_the_readme_benchmark_table_is_the_generated_one():
         rows.append(ln)
     assert len(rows) >= 8
     assert [r for r in rows[2:] if r not in page.splitlines()] == []
+
+
+def test_bench_command_rewrites_the_readme_block(tmp_path, monkeypatch):
+    import jaxplan.benchmarks.solver as bench_solver
+
+    res = {**SOLVER, "product": _kind(4.0, 640.0, 48.0, -1e-12, 16),
+           "paper": _kind(2.0, 300.0, 44.0, -1e-12, 7)}
+    monkeypatch.setattr(bench_solver, "run", lambda: res)
+    readme = tmp_path / "README.md"
+    readme.write_text("\n".join(["# r", README_MARK, "`make bench`: old", "", "| old |",
+                                 "|---|", "", "## after"]) + "\n")
+    assert main(["bench", "solver", "--readme", str(readme)]) == 0
+    lines = readme.read_text().splitlines()
+    assert lines[2].startswith("`make bench`; ") and "| old |" not in lines
+    assert "<= 5 ms: met" in readme.read_text() and lines[-2:] == ["", "## after"]
+    assert main(["bench", "predict", "--readme", str(readme)]) == 2
