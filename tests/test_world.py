@@ -209,7 +209,7 @@ _CASES = [([0.0, 0.0, 1.0], [6.0, 0.0, 1.0], [4.6, 0.9, 1.0]),
 def _with_other(p0, goal, other, r=0.3):
     P = _one_robot(p0, goal, r)
     return P._replace(others=Trajectory.hold(jnp.asarray([other], float)),
-                      other_radius=jnp.full((1,), r), other_mask=jnp.ones((1,), bool))
+                      other_radius=jnp.asarray([r], float), other_mask=jnp.ones((1,), bool))
 
 
 @jax.jit
