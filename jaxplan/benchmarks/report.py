@@ -2,7 +2,8 @@
 
     markdown(results, *, machine, commit, date) -> str
     write_markdown(path, results)     the same, with this machine, commit and date
-    write_readme(path, results)       README's block after README_MARK: a header line and
+    write_readme(path, results)       README's block after README_MARK: a header line (no
+                                      commit: the page's names it) and
                                       the product table's main rows (the page's rows)
 
 ``results`` is what `jaxplan bench all --json FILE` writes (``{"predict": ...,
@@ -301,15 +302,18 @@ README_ROWS = ("warm", "cold", "ipopt", "slsqp", "gap", "violation", "fleet100",
 
 
 def readme_lines(results: dict, *, machine: str, commit: str, date: str) -> list[str]:
-    """README's benchmark block: one header line (the command, machine, commit, date and
-    load), a blank line, the product table's main rows (each a row of the page)."""
+    """README's benchmark block: one header line (the command, machine, date and load;
+    the commit is the page's), a blank line, the product table's main rows (each a row
+    of the page)."""
     r = results["solver"]
     head, rows = _product_table(r)
     load = r["product"].get("loadavg_1min")
-    line = (f"`make bench`; {machine}; commit {commit}; {date}"
+    # README holds no commit hash (tests/test_docs.py): the page's header line names it
+    line = (f"`make bench`; {machine}; {date}"
             + (f"; 1-minute load average {load:.1f}" if load is not None else "")
             + ". The product's NLP against IPOPT and SLSQP, one core against one core; every "
-              "figure and how it is measured: [docs/BENCHMARKS.md](docs/BENCHMARKS.md).")
+              "figure, how it is measured and the commit: "
+              "[docs/BENCHMARKS.md](docs/BENCHMARKS.md).")
     return [line, "", *head, *(rows[k] for k in README_ROWS if k in rows)]
 
 
