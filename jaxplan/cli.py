@@ -99,6 +99,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--json", type=Path, default=None, help="write the figures as JSON")
     b.add_argument("--markdown", type=Path, default=None,
                    help="write the figures as a markdown page (docs/BENCHMARKS.md)")
+    b.add_argument("--readme", type=Path, default=None,
+                   help="rewrite this README's benchmark table (solver or all)")
     sub.add_parser("scenarios", help="list built-in scenarios")
     return p
 
@@ -257,6 +259,10 @@ def _cmd_plot(args) -> int:
 
 def _cmd_bench(args) -> int:
     which = ["predict", "solver", "sim"] if args.which == "all" else [args.which]
+    if args.readme is not None and "solver" not in which:
+        print("jaxplan bench: --readme needs the solver benchmark (solver or all)",
+              file=sys.stderr)
+        return 2
     results = {}
     for name in which:
         if name == "predict":
@@ -276,6 +282,11 @@ def _cmd_bench(args) -> int:
 
         write_markdown(args.markdown, results)
         print(f"wrote {args.markdown}")
+    if args.readme:
+        from jaxplan.benchmarks.report import write_readme
+
+        write_readme(args.readme, results)
+        print(f"wrote the benchmark table in {args.readme}")
     return 0
 
 

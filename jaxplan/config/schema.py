@@ -49,7 +49,7 @@ DEFAULT_DEGREE = 5
 DEFAULT_SEGMENTS = 2                     # rest ends need shape freedom (docs/MATH.md 2); paper: 1
 DEFAULT_END_STATE = "free"               # the paper's position-only end state
 DEFAULT_MAX_ITERS = 50                   # solver iterations per replan (bounded loop)
-DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tolerance
+DEFAULT_TOL = 1e-8                       # solver feasibility (m^2) / complementarity tolerance
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
 DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
 DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
@@ -116,7 +116,10 @@ class PlannerConfig:
 
     replan_hz (Hz); q_dynm, q_obs, q_lim, k_t (>= 0) objective weights; k_p (1/m, > 0);
     collision in COLLISION_MODES; degree (>= 5) and segments (>= 1) of the polynomial
-    per axis; end_state "free" | "rest" (default for robots); max_iters, tol, n_samples;
+    per axis; end_state "free" | "rest" (default for robots); max_iters (the solver's
+    iteration cap per replan); tol (> 0): the solver's feasibility tolerance (m^2, on
+    d^2 - rho^2) and complementarity tolerance (SolverSettings.tol_feasibility and
+    tol_complementarity); n_samples;
     safety_margin_m (m, >= 0): added to every robot's radius in the planner's collision
     terms only, so that rho_ij is planned with r_i + r_j + 2 margin while metrics still
     count a collision below r_i + r_j (covers sampling between collision samples and
