@@ -6,6 +6,7 @@
     python experiments/studies.py worlds    [--seeds N] [--out DIR] [--batch B] [--only W ...]
     python experiments/studies.py deadlock  [--seeds N] [--out DIR] [--batch B] [--only CELL ...]
     python experiments/studies.py results   [--out DIR]        (rebuild the page, run nothing)
+    ... collision|faults|deadlock|worlds --collect   (tabulate what --out holds, run nothing)
     make studies                            (paper, collision, faults, worlds into sweeps/studies/)
 
 ``paper``: the paper's four scenarios (experiments/paper/*.toml), each under the ideal
@@ -40,6 +41,11 @@ Each (study, setting, fleet) cell of ``collision``, ``faults`` and ``deadlock`` 
 stopped.  Batches of one run are the default because on a CPU a vmapped batch runs
 every lane for as many solver iterations as its slowest lane needs (20 antipodal runs:
 127 s batched, about 90 s one after another, 2-core CPU).
+
+``--collect`` tabulates the sweep and run directories already under ``--out`` as they
+are, without running (a sweep directory refuses a config that has changed since its
+rows were made, e.g. by a new ``[planner]`` key: the rows stay those of the code that
+made them).
 
 Every study prints its table (markdown) and writes it to ``--out/<study>.md``, with
 ``--out/<study>.meta.json`` (the command, the machine, the date) and the cells'
@@ -184,6 +190,9 @@ def _today() -> str:
 # ---------------------------------------------------------------------------------------
 
 
+COLLECT = False  # --collect: tabulate the sweep directories as they are, run nothing
+
+
 def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults=None,
           scenario=None) -> dict:
     import tomllib
@@ -199,8 +208,13 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
         doc["faults"] = dict(faults)
     doc["sweep"] = {"seeds": {"start": 0, "num": seeds}}
     cfg = parse_config(doc, source=str(base))
-    res = run_sweep(cfg, out, progress=sys.stderr.isatty(), batch_size=batch, figures=False,
-                    echo=None)
+    if COLLECT:  # the rows as an earlier run of the study left them (its code, its config)
+        if not (out / "sweep.csv").exists():
+            raise SystemExit(f"--collect: no {out / 'sweep.csv'}")
+        res = argparse.Namespace(csv=out / "sweep.csv", run_s=None, compile_s=None)
+    else:
+        res = run_sweep(cfg, out, progress=sys.stderr.isatty(), batch_size=batch,
+                        figures=False, echo=None)
     rows, _ = read_sweep_csv(res.csv)
     num = lambda k: [float(r[k]) for r in rows if r[k] not in ("", "nan")]  # noqa: E731
     ms = num("makespan_s")
@@ -363,6 +377,8 @@ def _paper_study(a) -> tuple[str, dict]:
 
 def _run_once(config: Path, out: Path, backend: str, t0: float) -> dict:
     mpath = out / "metrics.json"
+    if COLLECT and not mpath.exists():
+        raise SystemExit(f"--collect: no {mpath}")
     if not mpath.exists():  # metrics.json marks a complete run directory
         cmd = [sys.executable, "-m", "jaxplan", "run", str(config), "--out", str(out),
                "--backend", backend, "--quiet", "--no-figures"]
@@ -482,6 +498,9 @@ def main(argv=None) -> int:
     ap.add_argument("--off-seeds", type=int, default=None,
                     help="deadlock: at most this many seeds for the cells without the "
                          "resolution (the baseline)")
+    ap.add_argument("--collect", action="store_true",
+                    help="collision, faults, deadlock, worlds: run nothing; tabulate the "
+                         "sweep and run directories under --out as they are")
     ap.add_argument("--backends", nargs="+", choices=BACKENDS, default=BACKENDS,
                     help="paper, worlds: the backends to run (default both)")
     ap.add_argument("--only", nargs="+",
@@ -492,6 +511,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-results", action="store_true",
                     help="do not rewrite the results page after the study")
     a = ap.parse_args(argv)
+    global COLLECT
+    COLLECT = a.collect
     if a.study != "results":
         if a.study in ("collision", "faults", "worlds") and a.seeds is None:
             a.seeds = 20
