@@ -479,7 +479,7 @@ def test_solve_batch_random_nlps(seed):
     assert np.all(np.isfinite(sol.multipliers.collision)) and np.all(np.isfinite(sol.penalty))
     s = sol.status
     assert set(np.unique(s)) <= {solve.CONVERGED, solve.MAX_ITERS, solve.NON_FINITE,
-                                 solve.INFEASIBLE}
+                                 solve.INFEASIBLE, solve.LINE_SEARCH_FAILED}
     # documented status meanings
     assert np.all(s[~finite_in] == solve.NON_FINITE), "non-finite input must be reported"
     tol = solve.SolverSettings().tol_feasibility
