@@ -142,6 +142,7 @@ def test_compile_cache_dir_follows_the_environment(monkeypatch, tmp_path):
     assert compile_cache_dir() == tmp_path / "h" / ".cache" / "jaxplan" / "xla"
 
 
+@pytest.mark.slow  # two children, the first compiling the tiny scenario from an empty cache
 def test_a_rerun_from_the_compilation_cache_gives_the_same_results(tmp_path):
     """Two `jaxplan run` processes of one config sharing a cache directory: the first
     fills it, the second runs from it, and both write the same results."""
