@@ -624,6 +624,7 @@ def _check_replan(fp, structure, prev, new, info, p, v, a, gp, gv):
         np.testing.assert_allclose(start[kept], old[kept], rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.slow  # its own replan program (~18 s of the 2-core suite): `make test-slow`
 def test_replan_with_corrupted_views():
     sc, fp, structure = _fleet()
     rng = np.random.default_rng(0)

@@ -106,6 +106,7 @@ def test_run_with_neighbors_is_finite_and_follows_multipliers():
         assert np.all(np.isfinite(np.asarray(s.plans.plan.coeffs)))
 
 
+@pytest.mark.slow  # its own closed-loop program (~18 s of the 2-core suite): `make test-slow`
 def test_neighbors_run_end_to_end():
     from jaxplan.experiment import run
 

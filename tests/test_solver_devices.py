@@ -58,6 +58,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow  # a child compiling four solver programs on two devices (~19 s of the suite)
 def test_batch_split_over_cpu_devices_gives_the_one_device_results(tmp_path):
     """solve_batch splits a batch of more than LOCKSTEP_MAX NLPs over the CPU devices
     (jaxplan makes one per core; solve.default_shards), here in a child process with
