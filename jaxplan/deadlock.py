@@ -36,7 +36,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-RESOLUTIONS = ("sidestep", "off")
+RESOLUTIONS = ("auto", "sidestep", "off")
+
+
+def resolution_enabled(resolution: str, dim: int) -> bool:
+    """Whether a fleet in ``dim`` dimensions sidesteps under ``[planner] deadlock``:
+    "sidestep" always, "off" never, "auto" (the default) for planar fleets, which cannot
+    leave a stall through a third dimension."""
+    if resolution not in RESOLUTIONS:
+        raise ValueError(f"deadlock resolution {resolution!r}: choose from {RESOLUTIONS}")
+    return resolution == "sidestep" or (resolution == "auto" and dim == 2)
 
 
 class DeadlockParams(NamedTuple):

@@ -254,3 +254,21 @@ def test_ground_robots_and_the_antipodal_circle():
     with pytest.raises(ConfigError, match="planner.deadlock"):
         parse_config({"planner": {"deadlock": "yield"}, "scenario": {
             "kind": "antipodal_circle", "count": 2, "vehicles": ["ground"]}})
+
+
+def test_auto_sidesteps_in_planar_fleets_only():
+    from jaxplan.config import build_scenario, parse_config
+    from jaxplan.experiment import fleet_params
+
+    assert dl.resolution_enabled("auto", 2) and not dl.resolution_enabled("auto", 3)
+    assert dl.resolution_enabled("sidestep", 3) and not dl.resolution_enabled("off", 2)
+    with pytest.raises(ValueError, match="yield"):
+        dl.resolution_enabled("yield", 2)
+    for planner, dim, on in (({}, 2, True), ({}, 3, False), ({"deadlock": "off"}, 2, False),
+                             ({"deadlock": "sidestep"}, 3, True)):
+        sc = {"kind": "antipodal_circle", "count": 2, "dim": dim}
+        if dim == 2:
+            sc["vehicles"] = ["ground"]
+        cfg = parse_config({"planner": planner, "scenario": sc})
+        assert cfg.planner.deadlock == planner.get("deadlock", "auto")
+        assert bool(fleet_params(cfg, build_scenario(cfg)).deadlock.enabled) is on
