@@ -284,6 +284,10 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     plan, fallback, new_mult, new_pen = choose_plans(fp, ps, params, sol, p, v, a, structure)
     if ds is not None:
         ds = ds._replace(occupied=goal_moved & ~side)
+        # the next broadcast: the end of the plan flown (a braking plan's stopping point)
+        ds = dl.broadcast(ds, fp.deadlock, params.goal_p, params.goal_v, params.rest,
+                          plan.evaluate(plan.duration), fallback == BRAKING,
+                          fallback == KEPT_PREVIOUS)
     new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32),
                        (fallback != ACCEPTED) & fp.robot_mask, ds)
     info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
