@@ -88,7 +88,7 @@ class DeadlockState(NamedTuple):
     left: (M,) s of sidestep left (> 0: sidestepping).  sub: (M, N) the sub-goal of the
     last replan.  occupied: (M,) bool, the last replan planned beside an occupied goal.
     pub_p, pub_v: (M, N), pub_rest: (M,) bool: what the robot broadcasts as its goal at
-    the next replan (:func:`broadcast`; pub_p NaN: nothing yet).
+    the next replan (:func:`broadcast`) where pub_ok (M,) bool.
     """
 
     goal: jax.Array
@@ -100,6 +100,7 @@ class DeadlockState(NamedTuple):
     pub_p: jax.Array
     pub_v: jax.Array
     pub_rest: jax.Array
+    pub_ok: jax.Array
 
 
 def initial_state(p, goal=None) -> DeadlockState:
@@ -108,8 +109,8 @@ def initial_state(p, goal=None) -> DeadlockState:
     M = p.shape[0]
     g = jnp.full_like(p, jnp.nan) if goal is None else goal
     return DeadlockState(g, jnp.full((M,), jnp.inf), jnp.zeros((M,)), jnp.zeros((M,)),
-                         jnp.asarray(p), jnp.zeros((M,), bool), jnp.full_like(p, jnp.nan),
-                         jnp.zeros_like(p), jnp.zeros((M,), bool))
+                         jnp.asarray(p), jnp.zeros((M,), bool), jnp.asarray(p),
+                         jnp.zeros_like(p), jnp.zeros((M,), bool), jnp.zeros((M,), bool))
 
 
 def right_of(u):
@@ -200,11 +201,12 @@ def broadcast(ds: DeadlockState, prm: DeadlockParams, planned_p, planned_v, plan
     p = sel(braking, stop_p, planned_p)
     v = sel(braking, jnp.zeros_like(planned_v), planned_v)
     rest = braking | planned_rest
-    old = kept & jnp.all(jnp.isfinite(ds.pub_p), axis=-1)
+    old = kept & ds.pub_ok
     p, v, rest = sel(old, ds.pub_p, p), sel(old, ds.pub_v, v), sel(old, ds.pub_rest, rest)
-    on = prm.enabled & jnp.all(jnp.isfinite(p), axis=-1)
-    return ds._replace(pub_p=sel(on, p, jnp.nan), pub_v=sel(on, v, 0.0),
-                       pub_rest=on & rest)
+    on = prm.enabled & jnp.all(jnp.isfinite(p), axis=-1) & jnp.all(jnp.isfinite(v), axis=-1)
+    # nothing non-finite is carried: where there is nothing to broadcast, the old entries
+    return ds._replace(pub_p=sel(on, p, ds.pub_p), pub_v=sel(on, v, ds.pub_v),
+                       pub_rest=on & rest, pub_ok=on)
 
 
 def published_goals(ds: DeadlockState | None, goal_p, goal_v, rest):
@@ -214,7 +216,7 @@ def published_goals(ds: DeadlockState | None, goal_p, goal_v, rest):
     sidesteps)."""
     if ds is None:
         return goal_p, goal_v, rest
-    use = jnp.all(ds.goal == goal_p, axis=-1) & jnp.all(jnp.isfinite(ds.pub_p), axis=-1)
+    use = jnp.all(ds.goal == goal_p, axis=-1) & ds.pub_ok
     goal_p, goal_v, rest = planning_goals(ds, goal_p, goal_v, rest)
     sel = lambda a, b: jnp.where(use.reshape(use.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
     return sel(ds.pub_p, goal_p), sel(ds.pub_v, goal_v), sel(ds.pub_rest, rest)
