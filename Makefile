@@ -44,7 +44,7 @@ studies: $(STAMP)
 	$(PY) experiments/studies.py deadlock --out sweeps/studies
 
 bench: $(STAMP)
-	$(VENV)/bin/jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md
+	$(VENV)/bin/jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md --readme README.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check jaxplan tests

@@ -123,7 +123,8 @@ docs/DESIGN.md (metrics.json, sweep.csv).
 """
 DEFAULT_NOTES = {
     "paper": "Separation is exact in continuous time from the executed polynomial pieces "
-             "(ideal) and checked at every physics step (mjx). Replan: wall time of one fleet "
+             "(ideal) and checked at every physics step (mjx); so is each body's clearance above "
+             "the ground (z >= 0, the default 3-D workspace). Replan: wall time of one fleet "
              "replan (all robots), median / p95. Run: wall time after compilation.",
     "collision": "Seeds 0..N-1 per row; antipodal_10: 10 mixed Fireflys and Neos swap to the "
                  "antipodal points of a 4 m sphere; random_box_20: 20 robots, random starts "
@@ -340,10 +341,11 @@ def _paper_study(a) -> tuple[str, dict]:
                 ROOT / "paper" / f"{name}.toml", a.out / "paper" / f"{name}__{backend}",
                 backend, t0)
     f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)  # noqa: E731
-    lines = ["| scenario | backend | success | reached | collisions | min d/rho | makespan (s) "
+    lines = ["| scenario | backend | success | reached | collisions | ground contacts "
+             "| min ground clearance (m) | min d/rho | makespan (s) "
              "| peak speed / v_max | replan ms (median / p95) | tracking cm (rms / max) "
              "| run (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for key, m in results.items():
         name, backend = key.split(" | ")
         reached = sum(bool(r["reached"]) for r in m["per_robot"])
@@ -353,13 +355,16 @@ def _paper_study(a) -> tuple[str, dict]:
         label = f"{name} ({m['duration_s']:g} s)"
         lines.append(
             f"| {label} | {backend} | {'yes' if m['success'] else 'no'} | "
-            f"{reached} / {m['robots']} | {m['collisions']} | {f(m['min_separation_ratio'])} | "
+            f"{reached} / {m['robots']} | {m['collisions']} | "
+            f"{f(m.get('workspace_violations'), '{}')} | "
+            f"{f(m.get('min_workspace_clearance_m'))} | {f(m['min_separation_ratio'])} | "
             f"{f(m['makespan_s'], '{:.2f}')} | {f(m['peak_speed_over_limit'])} | "
             f"{f(s['median_ms'], '{:.1f}')} / {f(s['p95_ms'], '{:.1f}')} | {track} | "
             f"{f(m['run_s'], '{:.2f}')} |")
     print(f"total {time.perf_counter() - t0:.0f} s")
     return "\n".join(lines), {k: {kk: m.get(kk) for kk in (
-        "success", "collisions", "min_separation_ratio", "makespan_s", "run_s", "compile_s")}
+        "success", "collisions", "workspace_violations", "min_workspace_clearance_m",
+        "min_separation_ratio", "makespan_s", "run_s", "compile_s")}
         for k, m in results.items()}
 
 

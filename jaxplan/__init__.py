@@ -81,6 +81,25 @@ def _set_cpu_devices() -> None:
         pass
 
 
+# XLA aborts the whole process when the CPU devices of one program reach a collective
+# (the all-gather that ends a batch split over devices) more than 40 s apart: on a loaded
+# machine (a 2-core CPU running a sweep beside other jobs) one device's half of a batch
+# can lag that much, and a sweep of hours died with "Termination timeout for `all
+# gather ...` of 40 seconds exceeded".  The devices of a jaxplan program only ever wait
+# for each other's work, so jaxplan lets them wait up to an hour (and warns after 5 min);
+# a value the user put in XLA_FLAGS is kept.
+COLLECTIVE_FLAGS = {"xla_cpu_collective_call_terminate_timeout_seconds": 3600,
+                    "xla_cpu_collective_call_warn_stuck_timeout_seconds": 300}
+
+
+def _set_collective_timeouts() -> None:
+    flags = os.environ.get("XLA_FLAGS", "")
+    extra = [f"--{k}={v}" for k, v in COLLECTIVE_FLAGS.items() if k not in flags]
+    if extra:
+        os.environ["XLA_FLAGS"] = " ".join([flags, *extra]).strip()
+
+
+_set_collective_timeouts()
 _set_cpu_devices()
 
 

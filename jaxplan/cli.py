@@ -4,6 +4,7 @@
     jaxplan run CONFIG.toml [--out DIR]        one experiment -> a run directory
     jaxplan sweep CONFIG.toml [--out DIR]      a grid of weights x scenarios x seeds
         [--engine local|ray [--address ADDR]] [--shard I/N | --merge]
+    jaxplan tune CONFIG.toml [--trials N] [--out DIR]   weights searched by Optuna
     jaxplan plot RUN_DIR                        (re)draw a run's figures
     jaxplan bench [solver|predict|sim|all] [--json FILE] [--markdown FILE]
     jaxplan scenarios                           list built-in scenarios
@@ -77,6 +78,19 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--no-cache", action="store_true",
                    help="do not use the compilation cache (see JAXPLAN_CACHE_DIR)")
+    t = sub.add_parser("tune", help="search the [tune] weights for the objective (resumable)")
+    t.add_argument("config", type=Path, help="TOML file with a [tune] table")
+    t.add_argument("--trials", type=int, default=None,
+                   help="complete trials wanted in all (default: [tune] trials)")
+    t.add_argument("--out", type=Path, default=None,
+                   help="tune directory (default: tunes/<name>)")
+    t.add_argument("--batch", type=int, default=None,
+                   help="runs per batched computation (default: 1 on a CPU, 27 on an "
+                        "accelerator; or JAXPLAN_SWEEP_BATCH)")
+    t.add_argument("--no-figures", action="store_true", help="skip the figures")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.add_argument("--no-cache", action="store_true",
+                   help="do not use the compilation cache (see JAXPLAN_CACHE_DIR)")
     pl = sub.add_parser("plot", help="(re)draw a run directory's figures")
     pl.add_argument("run_dir", type=Path)
     pl.add_argument("--no-animation", action="store_true")
@@ -85,6 +99,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--json", type=Path, default=None, help="write the figures as JSON")
     b.add_argument("--markdown", type=Path, default=None,
                    help="write the figures as a markdown page (docs/BENCHMARKS.md)")
+    b.add_argument("--readme", type=Path, default=None,
+                   help="rewrite this README's benchmark table (solver or all)")
     sub.add_parser("scenarios", help="list built-in scenarios")
     return p
 
@@ -243,6 +259,10 @@ def _cmd_plot(args) -> int:
 
 def _cmd_bench(args) -> int:
     which = ["predict", "solver", "sim"] if args.which == "all" else [args.which]
+    if args.readme is not None and "solver" not in which:
+        print("jaxplan bench: --readme needs the solver benchmark (solver or all)",
+              file=sys.stderr)
+        return 2
     results = {}
     for name in which:
         if name == "predict":
@@ -262,6 +282,11 @@ def _cmd_bench(args) -> int:
 
         write_markdown(args.markdown, results)
         print(f"wrote {args.markdown}")
+    if args.readme:
+        from jaxplan.benchmarks.report import write_readme
+
+        write_readme(args.readme, results)
+        print(f"wrote the benchmark table in {args.readme}")
     return 0
 
 
@@ -299,6 +324,26 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
+def _cmd_tune(args) -> int:
+    cfg = _load(args.config)
+    from jaxplan.tune import TuneError, run_tune
+
+    for flag, v in (("--trials", args.trials), ("--batch", args.batch)):
+        if v is not None and v < 1:
+            raise _Fail(f"{flag} must be >= 1, got {v}")
+    if cfg.tune is None:
+        raise _Fail(f"{args.config}: tune: missing; `jaxplan tune` needs a [tune] table "
+                    "(docs/DESIGN.md)")
+    out = args.out or Path("tunes") / cfg.name
+    _use_compile_cache(args.no_cache)
+    try:
+        run_tune(cfg, out, trials=args.trials, progress=not args.quiet,
+                 batch_size=args.batch, figures=not args.no_figures)
+    except TuneError as e:
+        raise _Fail(str(e)) from None
+    return 0
+
+
 def main(argv=None) -> int:
     """Entry point; returns the exit status."""
     args = _parser().parse_args(argv)
@@ -307,8 +352,8 @@ def main(argv=None) -> int:
     if jaxplan.CPU_DEVICES_ERROR:
         print(f"jaxplan: error: {jaxplan.CPU_DEVICES_ERROR}", file=sys.stderr)
         return 2
-    cmds = {"run": _cmd_run, "sweep": _cmd_sweep, "plot": _cmd_plot, "bench": _cmd_bench,
-            "scenarios": _cmd_scenarios}
+    cmds = {"run": _cmd_run, "sweep": _cmd_sweep, "tune": _cmd_tune, "plot": _cmd_plot,
+            "bench": _cmd_bench, "scenarios": _cmd_scenarios}
     try:
         return cmds[args.command](args)
     except _Fail as e:

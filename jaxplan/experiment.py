@@ -84,7 +84,7 @@ def structures(config: Config, *, only_needed: bool = True,
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults
-    return RolloutStructure(planner=PlannerStructure(nlp=nlp, max_iters=pc.max_iters,
+    return RolloutStructure(planner=PlannerStructure(nlp=nlp,
                                                      max_neighbors=pc.max_neighbors,
                                                      solver_pool=pc.solver_pool),
                             steps=steps, faults=fc.enabled,
@@ -107,7 +107,8 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
     lim = Limits(jnp.asarray(scenario.v_max), jnp.asarray(scenario.a_max),
                  jnp.asarray(scenario.j_max))
     M = scenario.start.shape[0]
-    settings = solve.SolverSettings(max_iters=pc.max_iters)
+    settings = solve.SolverSettings(max_iters=pc.max_iters, tol_feasibility=pc.tol,
+                                    tol_complementarity=pc.tol)
     return FleetParams(
         weights=w, limits=lim, radius=jnp.asarray(scenario.radius) + pc.safety_margin_m,
         robot_mask=jnp.ones((M,), bool), dt=jnp.asarray(1.0 / pc.replan_hz),

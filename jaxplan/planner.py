@@ -88,7 +88,8 @@ ACCEPTED, KEPT_PREVIOUS, BRAKING, BEST_EFFORT = 0, 1, 2, 3
 class PlannerStructure:
     """Static planner settings (hashable; a change recompiles).
 
-    nlp: the NLP's static structure.  max_iters: solver iteration cap.
+    nlp: the NLP's static structure.  (The solver's iteration cap and tolerances are
+    traced: FleetParams.settings.)
     max_neighbors: 0 (every other robot is in each robot's NLP) or K >= 1: each robot's
     NLP holds only the K others that come nearest to its own closed-form prediction
     (:func:`nearest_neighbors`); the NLP's cost then grows with K, not with the fleet.
@@ -97,7 +98,6 @@ class PlannerStructure:
     """
 
     nlp: NLPStructure = field(default_factory=NLPStructure)
-    max_iters: int = 60
     max_neighbors: int = 0
     solver_pool: int = 0
 
@@ -445,7 +445,8 @@ def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol, p, v, a
     finite = jnp.all(jnp.isfinite(sol.traj.coeffs), axis=(-1, -2, -3)) & jnp.all(
         jnp.isfinite(sol.traj.breaks), axis=-1)
     good_status = (sol.status == solve.CONVERGED) | (
-        (sol.status == solve.MAX_ITERS) & (sol.ineq_violation <= fp.accept_violation))
+        ((sol.status == solve.MAX_ITERS) | (sol.status == solve.LINE_SEARCH_FAILED))
+        & (sol.ineq_violation <= fp.accept_violation))
     accepted = finite & good_status & (sol.eq_violation <= 1e-6)
 
     prev = ps.plan.shift(fp.dt)

@@ -49,8 +49,9 @@ CSV as complete lines in one write, under the file's lock
 most the batches in flight; a process never appends a key twice.  Re-running the same
 command reads the CSV, drops a trailing partial line (a kill mid-write) and skips every
 finished key.  The resolved config is kept in ``config.toml``; a sweep directory made
-with a different config (anything but ``[sweep]``, the name and the description) is
-refused (:class:`SweepError`), so rows of two different planners are never mixed.
+with a different config (anything but ``[sweep]``, ``[tune]``, the name and the
+description) is refused (:class:`SweepError`), so rows of two different planners are
+never mixed.
 Growing the grid in the same directory is fine: only the new points run.
 
 Columns (:data:`jaxplan.sweep_csv.COLUMNS`): the key, then success (1/0), collisions,
@@ -188,7 +189,7 @@ def sweep_points(config: Config) -> list[SweepPoint]:
 
 # ------------------------------------------------------------------------ config guard
 
-_FREE_TABLES = ("sweep", "name", "description")
+_FREE_TABLES = ("sweep", "tune", "name", "description")
 # keys added later whose default changed what a run does: a config.toml without one was
 # written by a version that behaved as this value (so resuming it under the new default
 # is a different config, not the same one)

@@ -5,7 +5,8 @@ point's sweep.csv row is the same whatever the engine.
     SweepPoint(q_obs, q_lim, scenario, seed)            one run of the grid; .key
     scenario_sources(config) -> [ScenarioSource]        the grid's scenarios: label, build(seed)
     build_scenarios(config, points) -> {(label, seed): Scenario}
-    BatchRunner(config, say).rows(points, built, m_pad, batch, on_compiled=None) -> [row]
+    BatchRunner(config, say).rows(points, built, m_pad, batch, on_compiled=None, *,
+                                  weights=None, r_pad=None) -> [row]
     CompileCounter.install(), CompileCounter.get()      compilations of the batch program
 
 A batch is one call of one compiled program (:func:`jaxplan.rollout.rollout_batch`,
@@ -19,6 +20,12 @@ device running its own runs side by side (:func:`jaxplan.solve.shard_lanes`).  T
 program is compiled once per process, structure and shape (robots, dimensions,
 waypoints, batch) and kept; compilations are counted from JAX's own compile events
 (``jax.monitoring``, :class:`CompileCounter`).
+
+Per-run weights (``weights``, for :mod:`jaxplan.tune`): each point may override any of
+the [planner] settings in :data:`jaxplan.config.TUNABLE_WEIGHTS` besides its own q_obs and
+q_lim (q_dynm, k_t, k_p, safety_margin_m); they are traced inputs like the point's q_obs
+and q_lim (the weights, the prediction weight k_t / q_dynm, the radii plus the margin),
+so runs of different weights share one compiled program.
 
 Rows: :data:`jaxplan.sweep_csv.COLUMNS`, from the run's metrics (:func:`csv_row`).
 """
@@ -38,7 +45,7 @@ import jax
 import numpy as np
 
 from jaxplan import scenarios
-from jaxplan.config import Config, build_scenario
+from jaxplan.config import TUNABLE_WEIGHTS, Config, build_scenario
 from jaxplan.experiment import compute_metrics, fleet_params, stack_trees, structures, task_of
 from jaxplan.nlp import Weights
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
@@ -59,6 +66,7 @@ __all__ = [
     "pad_robots",
     "scenario_sources",
     "structure_for",
+    "with_weights",
 ]
 
 PARK_DISTANCE = 1.0e4  # m: where padding robots are parked
@@ -324,6 +332,20 @@ class _ReachState(NamedTuple):
     reach_time: np.ndarray
 
 
+def with_weights(config: Config, weights) -> Config:
+    """The config with [planner] settings of :data:`jaxplan.config.TUNABLE_WEIGHTS`
+    replaced (``weights``: {name: value}, may be empty); any other name is a ValueError
+    (it may change the program's structure)."""
+    if not weights:
+        return config
+    bad = sorted(set(weights) - set(TUNABLE_WEIGHTS))
+    if bad:
+        raise ValueError(f"not traced weights: {', '.join(bad)} (traced: "
+                         f"{', '.join(TUNABLE_WEIGHTS)})")
+    return dataclasses.replace(config, planner=dataclasses.replace(
+        config.planner, **{k: float(v) for k, v in weights.items()}))
+
+
 def _run_metrics(config: Config, prep: _Prepared, records, final: _ReachState, b: int):
     """Metrics of lane b (unpadded robots) -> a csv row."""
     M = prep.scenario.num_robots
@@ -406,18 +428,33 @@ class BatchRunner:
         return compiled
 
     def rows(self, points, built: dict, m_pad: int, batch: int,
-             on_compiled: Callable[[], None] | None = None) -> list[dict]:
+             on_compiled: Callable[[], None] | None = None, *, weights=None,
+             r_pad: int | None = None) -> list[dict]:
         """The sweep.csv rows of ``points`` (at most ``batch``, one shape: dimensions and
         waypoints) run as one batch of ``batch`` runs with ``m_pad`` robots; ``built``:
         their scenarios (:func:`build_scenarios`).  ``on_compiled`` is called after a
-        compilation, before the run."""
+        compilation, before the run.  ``weights``: per point, {name: value} of its other
+        traced [planner] weights (module doc; None: the config's).  ``r_pad``: static
+        rows to pad every world to (default: the batch's largest world's)."""
         points = list(points)
         if not 1 <= len(points) <= batch:
             raise ValueError(f"a batch holds 1 to {batch} points, got {len(points)}")
-        r_pad = max(static_rows(built[(p.scenario, p.seed)].world).mask.shape[0]
-                    for p in points)
-        preps = [_prepare(self.config, p, built[(p.scenario, p.seed)], m_pad, r_pad)
-                 for p in points]
+        if weights is None:
+            configs = [self.config] * len(points)
+        else:
+            if len(weights) != len(points):
+                raise ValueError(f"{len(weights)} weight sets for {len(points)} points")
+            if any({"q_obs", "q_lim"} & set(w) for w in weights):
+                raise ValueError("q_obs and q_lim are the points' own, not weights'")
+            configs = [with_weights(self.config, w) for w in weights]
+        need = max(static_rows(built[(p.scenario, p.seed)].world).mask.shape[0]
+                   for p in points)
+        if r_pad is None:
+            r_pad = need
+        elif r_pad < need:
+            raise ValueError(f"r_pad = {r_pad} < {need} static rows of a world in the batch")
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad)
+                 for c, p in zip(configs, points, strict=True)]
         full = preps + [preps[-1]] * (batch - len(preps))
         fpb = stack_trees([c.fp for c in full])
         taskb = stack_trees([c.task for c in full])
@@ -434,7 +471,7 @@ class BatchRunner:
         (reached, reach_time), records = compiled(fpb, taskb)
         records = jax.tree.map(np.asarray, records)
         final = _ReachState(np.asarray(reached), np.asarray(reach_time))
-        rows = [_run_metrics(self.config, preps[b], records, final, b)
+        rows = [_run_metrics(configs[b], preps[b], records, final, b)
                 for b in range(len(preps))]
         self.tally.run_s += time.perf_counter() - t0
         self.tally.batches += 1

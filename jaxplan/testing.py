@@ -88,19 +88,23 @@ def index_params(p: NLPParams, i) -> NLPParams:
 
 
 def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=None,
-                 t_min=0.1, max_neighbors: int = 0, return_neighbors: bool = False):
+                 t_min=0.1, max_neighbors: int = 0, return_neighbors: bool = False,
+                 prediction_weight: float = 1.0, static=None):
     """The M NLPs of one fleet replan: robot i sees the other M - 1 robots' predictions
-    (w = 1, the paper's prediction), in the planner's slots
+    (time weight ``prediction_weight``, default 1: the paper's prediction; the planner
+    uses k_t / q_dynm), in the planner's slots
     (:func:`jaxplan.planner.all_others`).  pos, vel, acc, goals: (M, N).
 
     max_neighbors K > 0: each NLP holds only the K others that
     :func:`jaxplan.planner.nearest_neighbors` picks (as the planner does with
     ``[planner] max_neighbors``).  return_neighbors: also return the (M, K) indices.
+    static: the world's :class:`jaxplan.world.StaticRows` (the same for every robot, as
+    the planner's), or None.
     """
     M, N = pos.shape
     z = jnp.zeros((M, N))
     restv = jnp.broadcast_to(jnp.asarray(rest), (M,))
-    pred = _predict(pos, vel, acc, goals, z, z, restv, 1.0)
+    pred = _predict(pos, vel, acc, goals, z, z, restv, prediction_weight)
     others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
     orad = jnp.full((M, M), radius)
     mask = ~jnp.eye(M, dtype=bool)
@@ -116,7 +120,9 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     P = NLPParams(jnp.asarray(pos), jnp.asarray(vel), jnp.asarray(acc), jnp.asarray(goals), z, z,
                   restv,
                   others, orad, mask, bc(radius),
-                  jax.tree.map(bc, w), jax.tree.map(bc, lim), bc(t_min))
+                  jax.tree.map(bc, w), jax.tree.map(bc, lim), bc(t_min),
+                  None if static is None else jax.tree.map(
+                      lambda a: jnp.broadcast_to(jnp.asarray(a), (M,) + np.shape(a)), static))
     return (P, idx) if return_neighbors else P
 
 

@@ -55,7 +55,7 @@ TINY_TOML = (Path(__file__).resolve().parents[1] / "examples" / "tiny.toml").rea
 # from the session's compilation cache).  Every other module is its own unit, as usual.
 SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
                  ("test_cli", "test_crash", "test_examples", "test_planner",
-                  "test_world_metrics")}
+                  "test_world_metrics", "test_tune")}
 
 
 def pytest_xdist_make_scheduler(config, log):

@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import json
 
-from jaxplan.benchmarks.report import markdown, write_markdown
+from jaxplan.benchmarks.report import (
+    README_MARK,
+    markdown,
+    readme_lines,
+    replace_readme_block,
+    write_markdown,
+)
 from jaxplan.cli import main
 
 PREDICT = {"pairs": 1_000_000, "threads": 2, "predictions_per_s": 2_471_234.0,
@@ -37,7 +43,8 @@ def test_every_benchmark_section_shows_its_figures():
     lines = page.splitlines()
     header = [ln for ln in lines if "commit abc1234" in ln]
     assert header == ["`make bench (jaxplan bench all --json bench.json --markdown "
-                      "docs/BENCHMARKS.md)`; 2-core CPU (test); commit abc1234; 2026-12-04."]
+                      "docs/BENCHMARKS.md --readme README.md)`; 2-core CPU (test); commit "
+                      "abc1234; 2026-12-04."]
     for figure in ("2,471,234", "312x", "3.5e-15", "2.13 ms", "38.5x", "1.41 ms", "53.1x",
                    "5.2e-11", "1.6e-11", "258.5 ms", "45.3 ms", "16 nearest", "9.80 ms",
                    "14,741 robot-NLP solves/s", "9,799-15,012/s", "121x", "7.4x", "5.3x",
@@ -76,3 +83,118 @@ def test_bench_command_takes_a_markdown_path(tmp_path, monkeypatch):
     assert json.loads(js.read_text())["batch64x10"]["ms"] == 43.4
     write_markdown(out, {"sim": SIM})  # overwritten whole
     assert "## Solver" not in out.read_text() and "7.4x" in out.read_text()
+
+
+def _kind(warm_ms, ipopt_warm, algo_warm, gap_min, n_x):
+    ref = lambda gmin: {"rel_gap_min": gmin, "rel_gap_max": 3e-11, "abs_rel_gap_max": abs(gmin),
+                        "pairs_gap_over_1e6": int(abs(gmin) > 1e-6), "pairs": 50,
+                        "jax_max_violation": 0.0, "ref_max_violation": 2e-9}
+    return {
+        "nlp": {"n_x": n_x, "segments": 2 if n_x == 16 else 1,
+                "n_coast_samples": 8 if n_x == 16 else 0},
+        "fleet10": {"cold_ms": 1.7 * warm_ms, "warm_ms": warm_ms, "warm_conv": 1.0,
+                    "warm_iters_max": 9, "cpu_per_wall": 0.99, "warm_lane_iters_per_replan": 40},
+        "ipopt10": {"cold_ms": 812.0, "warm_ms": ipopt_warm, **ref(gap_min)},
+        "slsqp10": {"cold_ms": 900.0, "warm_ms": 777.0, "cold_algorithm_ms": 95.0,
+                    "warm_algorithm_ms": algo_warm, "iterations_or_evals_median": 41.0,
+                    **ref(-2e-12)},
+        "ratio_vs_ipopt_warm": ipopt_warm / warm_ms, "ratio_vs_ipopt_cold": 812 / (1.7 * warm_ms),
+        "ratio_vs_slsqp_warm": 777 / warm_ms, "ratio_vs_slsqp_cold": 900 / (1.7 * warm_ms),
+        "ratio_vs_slsqp_algorithm_warm": algo_warm / warm_ms,
+        "ratio_vs_slsqp_algorithm_cold": 95 / (1.7 * warm_ms), "cold_over_warm": 1.7,
+        "repeats": 3, "warm_replans": 4, "loadavg_1min": 1.3,
+        "whole_machine": {"fleet10": {"warm_ms": 0.8 * warm_ms}, "ratio_vs_ipopt_warm": 41.5,
+                          "ratio_vs_slsqp_algorithm_warm": 6.25, "workers": 2},
+    }
+
+
+def test_the_product_table_states_each_target_and_why_it_is_missed():
+    prod = _kind(6.4, 640.0, 48.0, -3.1e-5, 16)
+    prod["fleet100"] = {"warm_ms": 61.0, "warm_conv": 1.0, "warm_iters_median": 4.0,
+                        "warm_iters_max": 23, "warm_iters_sum_per_replan": 520.0,
+                        "warm_ms_per_lane_iteration": 0.117}
+    prod["obstacles20"] = {
+        "obstacles": 20, "warm_ratio": 1.8, "repeats": 5, "warm_replans": 4,
+        "with": {"n_static": 26, "warm_ms": 9.0, "warm_conv": 1.0, "warm_iters_sum": [30, 34]},
+        "none": {"n_static": 6, "warm_ms": 5.0, "warm_conv": 0.9, "warm_iters_sum": [25, 25]}}
+    paper = _kind(2.0, 300.0, 44.0, -1e-12, 7)
+    page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
+                    machine="m", commit="c", date="d")
+    rows = {ln.split(" | ")[0]: ln for ln in page.splitlines() if ln.startswith("| ")}
+    warm = rows["| JAX, 10-robot replan, warm (median of the replans' medians)"]
+    assert "6.40 ms" in warm and "2.00 ms" in warm
+    assert ("<= 5 ms: **not met**: 6.40 ms on one core: 40 lane-iterations per replan at 160 us "
+            "each (load average 1.3)") in warm
+    assert "100.0x" in rows["| IPOPT (CasADi, SX derivatives), 10 NLPs one after another, "
+                            "warm / cold"] and ">= 10x warm: met" in page
+    slsqp = rows["| NLopt SLSQP, warm: total / callbacks taken out"]
+    assert "7.5x" in slsqp and "**not met**: 7.5x: SLSQP's own work is 4.8 ms per NLP" in slsqp
+    gap = rows["| objective gap (JAX - ref) / max(1, abs(ref)), every pair (negative: JAX lower)"]
+    assert "1 of 50 beyond 1e-6" in gap and "JAX ended lower by up to 3.1e-05" in gap
+    assert "cold <= 2x warm: met" in page and "no worse: met" in page
+    big = rows["| 100 robots, every other robot in every NLP, warm (whole machine)"]
+    assert "61.0 ms" in big and "median 4, max 23" in big and "117 us" in big
+    assert "<= 50 ms: **not met**: 61.0 ms: 520 lane-iterations per replan" in big
+    assert "41.5x / 6.2x (references on 2 processes)" in page
+    obs = rows["| 10-robot warm fleet replan with 20 obstacles vs none (random_obstacles world, "
+               "arena walls and ceiling in both; whole machine)"]
+    assert "9.00 ms vs 5.00 ms: 1.80x, 100% / 90% converged" in obs
+    assert ("<= 1.5x: **not met**: 1.80x: lane-iterations per replan 32 vs 25, 281 vs 200 us "
+            "each (26 static rows vs 6)") in obs
+    prod["obstacles20"]["warm_ratio"] = 1.4
+    page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
+                    machine="m", commit="c", date="d")
+    assert "<= 1.5x: met |" in page
+    # README's block: a header line naming machine, commit and date, then rows of the page
+    block = readme_lines({"solver": {**SOLVER, "product": prod, "paper": paper}},
+                         machine="2-core CPU (x)", commit="c0ffee1", date="2026-12-04")
+    assert block[0].startswith("`make bench`; 2-core CPU (x); 2026-12-04; "
+                               "1-minute load average 1.3.") and block[1] == ""
+    assert "c0ffee1" not in block[0]  # README holds no commit hash
+    assert len(block) == 2 + 2 + 8 and all(ln in page.splitlines() for ln in block[4:])
+    text = "\n".join(["# x", README_MARK, "old header", "", "| a |", "|---|", "| 1 |", "",
+                      "## next"])
+    new = replace_readme_block(text, block).split("\n")
+    assert new[:2] == ["# x", README_MARK] and new[2:2 + len(block)] == block
+    assert new[2 + len(block):] == ["", "## next"]
+
+
+def test_the_readme_benchmark_table_is_the_generated_one():
+    """README's benchmark block is what `make bench` (jaxplan bench --readme) wrote: the
+    line after its marker names the command, machine and date (the commit: the page's
+    header line), and every row of the table under it is a line of docs/BENCHMARKS.md,
+    written by the same run."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text().splitlines()
+    page = (root / "docs" / "BENCHMARKS.md").read_text()
+    i = readme.index(README_MARK)
+    m = re.match(r"`make bench`; (.+); (\d{4}-\d{2}-\d{2}); ", readme[i + 1])
+    assert m  # the machine and the date; the page's header line (below) names the commit
+    header = page.splitlines()[2]
+    assert f"; {m.group(1)}; commit " in header and header.endswith(f"; {m.group(2)}.")
+    rows = []
+    for ln in readme[i + 3:]:
+        if not ln.startswith("|"):
+            break
+        rows.append(ln)
+    assert len(rows) >= 8
+    assert [r for r in rows[2:] if r not in page.splitlines()] == []
+
+
+def test_bench_command_rewrites_the_readme_block(tmp_path, monkeypatch):
+    import jaxplan.benchmarks.solver as bench_solver
+
+    res = {**SOLVER, "product": _kind(4.0, 640.0, 48.0, -1e-12, 16),
+           "paper": _kind(2.0, 300.0, 44.0, -1e-12, 7)}
+    monkeypatch.setattr(bench_solver, "run", lambda: res)
+    readme = tmp_path / "README.md"
+    readme.write_text("\n".join(["# r", README_MARK, "`make bench`: old", "", "| old |",
+                                 "|---|", "", "## after"]) + "\n")
+    assert main(["bench", "solver", "--readme", str(readme)]) == 0
+    lines = readme.read_text().splitlines()
+    assert lines[2].startswith("`make bench`; ") and "| old |" not in lines
+    assert "<= 5 ms: met" in readme.read_text() and lines[-2:] == ["", "## after"]
+    assert main(["bench", "predict", "--readme", str(readme)]) == 2

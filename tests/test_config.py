@@ -465,3 +465,16 @@ def test_fuzz_mutated_valid_configs(data):
 @pytest.mark.parametrize("data", BASES)
 def test_fuzz_bases_are_valid(data):
     build_scenario(parse_config(data))
+
+
+def test_solver_keys_reach_the_solver_and_defaults_agree():
+    """[planner] max_iters and tol are what the planner's solver runs with
+    (FleetParams.settings), and their defaults are SolverSettings' own."""
+    from jaxplan import experiment, solve
+
+    assert C.DEFAULT_MAX_ITERS == solve.SolverSettings().max_iters
+    assert C.DEFAULT_TOL == solve.SolverSettings().tol_feasibility
+    assert C.DEFAULT_TOL == solve.SolverSettings().tol_complementarity
+    cfg = parse_config({**two(), "planner": {"max_iters": 17, "tol": 3e-7}})
+    s = experiment.fleet_params(cfg, build_scenario(cfg)).settings
+    assert (s.max_iters, s.tol_feasibility, s.tol_complementarity) == (17, 3e-7, 3e-7)

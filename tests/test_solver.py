@@ -14,6 +14,7 @@ import pytest
 from jaxplan import nlp, solve
 from jaxplan.nlp import NLPStructure
 from jaxplan.reference import solve_slsqp
+from jaxplan.solve.types import max_violation
 from jaxplan.testing import index_params, random_problem, stack_params
 from jaxplan.trajectory import Trajectory
 
@@ -483,3 +484,136 @@ def test_warm_replan_with_a_large_penalty_converges():
         P, x0, m, mu))
     assert sol.status == solve.CONVERGED and sol.iterations <= 15, (sol.status, sol.iterations)
     assert sol.ineq_violation <= 1e-8 and np.isfinite(sol.objective)
+
+
+
+def test_failed_line_search_is_its_own_status_and_stops_the_lane():
+    """A line search that finds no Armijo step, on an L_A the multiplier update leaves
+    unchanged, would be repeated from the same point along the same direction: the lane
+    stops at once, LINE_SEARCH_FAILED, at its last accepted point.  Forced here by an
+    Armijo constant of 1 (a Newton step on a convex model decreases L_A by less than its
+    first-order prediction): lanes that start feasible, where the update leaves the
+    zero multipliers and the penalty as they are, stop so after their first iteration,
+    at x0; a lane that starts infeasible (or whose rare accepted step was infeasible)
+    gets new multipliers at each failure, so it goes on and, no longer moving, is found
+    INFEASIBLE.  No lane repeats failed searches until the budget runs out.  (The
+    module's 50-lane batch: the same compiled program as the other tests.)"""
+    ps, P = _s1_batch()
+    x0 = solve.initial_guess_batch(P, S1)
+    never = solve.SolverSettings(armijo=1.0, max_backtracks=3, max_iters=40)
+    sol = jax.device_get(solve.solve_batch(P, x0, S1, never, pool=B))
+    g0, obj0 = jax.device_get(_at_x0(x0, P))
+    finite = np.arange(B) != 3  # the NaN lane of _s1_batch
+    feasible = finite & (g0 == 0.0)
+    assert 10 <= feasible.sum() < finite.sum()  # both kinds of lane are there
+    lsf = sol.status == solve.LINE_SEARCH_FAILED
+    assert lsf[feasible].mean() >= 0.9, sol.status
+    assert np.all(np.isin(sol.status[finite], (solve.LINE_SEARCH_FAILED, solve.INFEASIBLE)))
+    assert np.all(sol.iterations[finite] < 40)  # none spent the budget
+    first = lsf & (sol.iterations == 1)
+    assert first[feasible].mean() >= 0.9
+    np.testing.assert_array_equal(sol.x[first], np.asarray(x0)[first])  # no step taken
+    np.testing.assert_allclose(sol.objective[first], obj0[first], rtol=1e-12)
+    assert solve.STATUS_NAMES[solve.LINE_SEARCH_FAILED] == "line-search-failed"
+
+
+@jax.jit
+def _at_x0(x0, P):
+    """The largest constraint violation and the objective of each lane at x0."""
+    return jax.vmap(lambda x, p: (max_violation(nlp.constraints(x, p, S1)),
+                                  nlp.objective(x, p, S1)))(x0, P)
+
+
+def _stuck_batch():
+    """The module's batch with two random NLPs whose solves get stuck infeasible in
+    lanes 0 and 1, lane 2 in place of the NaN lane 3: the same shapes (B lanes), the same
+    compiled programs as the module's other tests."""
+    ps, _ = _s1_batch()
+    rng = np.random.default_rng(7)
+    stuck = [random_problem(rng, n_others=int(rng.integers(1, 10)), rest=bool(i % 3 == 0))
+             for i in range(7)]
+    P = stack_params([stuck[0], stuck[6]] + ps[2:3] * 2 + ps[4:])
+    return P, solve.initial_guess_batch(P, S1)
+
+
+def test_lanes_stuck_infeasible_are_stopped_early():
+    """Two random NLPs whose solves get stuck at a violation that no penalty moves (the
+    violation stays within 10% from a penalty of 1e3 up to 1e10, e.g. 0.177 m^2): the
+    lanes stop INFEASIBLE after ``infeasible_updates`` multiplier updates in a row at a
+    penalty of at least ``infeasible_penalty`` that each left the violation above 0.9 x
+    the previous one's, long before a budget of 80 iterations; with the test off
+    (infeasible_updates huge) they spend the budget and end hardly less violating.  The
+    lanes that converge are not touched (:func:`test_stuck_lanes_against_the_test_off`
+    compares with the test off, lane by lane)."""
+    P, x0 = _stuck_batch()
+    s = solve.SolverSettings(max_iters=80)
+    sol = jax.device_get(solve.solve_batch(P, x0, S1, s, pool=B))
+    for k in (0, 1):
+        assert sol.status[k] == solve.INFEASIBLE and sol.iterations[k] <= 25, (
+            k, sol.status[k], sol.iterations[k])
+        assert sol.ineq_violation[k] > 0.01 and np.isfinite(sol.objective[k])
+    assert np.sum(sol.status == solve.CONVERGED) >= 40
+    assert np.all(np.isin(sol.status, (solve.CONVERGED, solve.INFEASIBLE)))
+
+
+@pytest.mark.slow
+def test_stuck_lanes_against_the_test_off():
+    """The batch of :func:`test_lanes_stuck_infeasible_are_stopped_early` with the early
+    test off (infeasible_updates huge): the stuck lanes spend the budget of 80 and end
+    hardly less violating; every lane that converges converges as with the test on, in
+    the same iterations."""
+    P, x0 = _stuck_batch()
+    s = solve.SolverSettings(max_iters=80)
+    sol = jax.device_get(solve.solve_batch(P, x0, S1, s, pool=B))
+    full = jax.device_get(solve.solve_batch(P, x0, S1, s._replace(infeasible_updates=10**6),
+                                            pool=B))
+    for k in (0, 1):
+        assert sol.status[k] == solve.INFEASIBLE and sol.iterations[k] <= 25, (
+            k, sol.status[k], sol.iterations[k])
+        assert full.status[k] == solve.INFEASIBLE and full.iterations[k] == 80
+        assert full.ineq_violation[k] >= 0.9 * sol.ineq_violation[k]
+    # every lane that converges with the test off converges as before; the others (two
+    # more of the batch are stuck so) still end infeasible, sooner
+    conv = full.status == solve.CONVERGED
+    assert conv.sum() >= 40
+    np.testing.assert_array_equal(sol.status[conv], full.status[conv])
+    np.testing.assert_array_equal(sol.iterations[conv], full.iterations[conv])
+    assert np.all(sol.status[~conv] == solve.INFEASIBLE)
+    assert np.all(sol.iterations[~conv] <= full.iterations[~conv])
+
+
+@pytest.mark.slow
+def test_casadi_ipopt_reference_is_the_same_nlp_and_reaches_the_same_optimum():
+    """jaxplan.reference_casadi builds the NLP in CasADi SX (from the same objective and
+    constraints, term for term): its objective and constraints equal jaxplan's at
+    random points near the guesses to 1e-10 relative; IPOPT with CasADi's own
+    derivatives reaches jaxplan's optimum from the same starts (relative objective gap
+    <= 1e-6 where both converge, no larger violation).  Nine others, no static rows;
+    tests/test_world.py has the fast one with static rows."""
+    pytest.importorskip("casadi")
+    from jaxplan import reference_casadi as rc
+
+    mode = "barrier+constraint"
+    ps, P, x0, sol = _random_results(mode)
+    st = S2[mode]
+    F = rc.casadi_functions(ps[0], st)
+    obj = jax.jit(nlp.objective, static_argnums=2)
+    con = jax.jit(lambda x, p: jnp.concatenate(
+        [jnp.ravel(a) for a in jax.tree.leaves(nlp.constraints(x, p, st))]))
+    rng = np.random.default_rng(3)
+    for i in range(4):
+        x = np.asarray(x0[i]) + rng.normal(size=st.n_x) * 0.3
+        f, g = F(x, rc.flat_params(ps[i]))
+        fj, gj = float(obj(jnp.asarray(x), ps[i], st)), np.asarray(con(jnp.asarray(x), ps[i]))
+        assert abs(float(f) - fj) <= 1e-10 * abs(fj), (float(f), fj)
+        np.testing.assert_allclose(np.asarray(g).ravel(), gj, rtol=1e-10, atol=1e-10 * np.max(
+            np.abs(gj)))
+    both = 0
+    for i in range(4):
+        r = rc.solve_ipopt(ps[i], np.asarray(x0[i]), st)
+        if r.converged and sol.status[i] == solve.CONVERGED:
+            both += 1
+            assert abs(sol.objective[i] - r.objective) <= 1e-6 * abs(r.objective), (
+                i, sol.objective[i], r.objective)
+            assert sol.ineq_violation[i] <= max(r.ineq_violation, 1e-8)
+    assert both >= 3

@@ -221,3 +221,54 @@ def test_two_threads_solving_at_once_do_not_deadlock(tmp_path):
     r = subprocess.run([sys.executable, "-c", _THREADS], env=child_env(tmp_path / "cache"),
                        cwd=ROOT, capture_output=True, text=True, timeout=240)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-3000:]
+
+
+def test_collective_timeouts_are_set_and_a_users_value_is_kept(monkeypatch):
+    """Importing jaxplan lets the CPU devices of a split batch wait for each other up to
+    an hour (XLA's 40 s default aborted a sweep on a loaded machine); a value already in
+    XLA_FLAGS is kept."""
+    import os
+
+    assert "--xla_cpu_collective_call_terminate_timeout_seconds=3600" in os.environ["XLA_FLAGS"]
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_collective_call_terminate_timeout_seconds=7")
+    jaxplan._set_collective_timeouts()
+    flags = os.environ["XLA_FLAGS"].split()
+    assert "--xla_cpu_collective_call_terminate_timeout_seconds=7" in flags
+    assert not any(f.endswith("terminate_timeout_seconds=3600") for f in flags)
+    assert "--xla_cpu_collective_call_warn_stuck_timeout_seconds=300" in flags
+
+
+_LAG = """
+import time
+import jaxplan
+import jax, jax.numpy as jnp
+from jax.sharding import Mesh, PartitionSpec as P
+mesh = Mesh(jax.devices("cpu")[:2], ("d",))
+def lag(i):
+    if int(i) == 0:
+        time.sleep(45.0)  # past XLA's default 40 s termination timeout
+    return i
+def f(x):
+    i = jax.lax.axis_index("d").astype(jnp.int32)
+    y = jax.pure_callback(lag, jax.ShapeDtypeStruct((), jnp.int32), i)
+    return jax.lax.all_gather(x + y, "d")
+g = jax.jit(jax.shard_map(f, mesh=mesh, in_specs=P("d"), out_specs=P(), check_vma=False))
+print(list(map(float, g(jnp.arange(2.0)).ravel())))
+"""
+
+
+@pytest.mark.slow  # waits 45 s by design: `make test-slow`
+def test_a_device_45_s_late_to_an_all_gather_does_not_abort(tmp_path):
+    """One device reaches the all-gather 45 s after the other (a loaded machine): the
+    program completes instead of XLA's abort at 40 s."""
+    import subprocess
+    import sys
+
+    from tests._proc import ROOT, child_env
+
+    env = child_env(tmp_path / "cache", JAXPLAN_CPU_DEVICES="2")
+    env.pop("XLA_FLAGS", None)
+    r = subprocess.run([sys.executable, "-c", _LAG], env=env, cwd=ROOT, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout.strip() == "[0.0, 2.0]"

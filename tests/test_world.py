@@ -166,7 +166,9 @@ _PILLAR = World.default(3).with_obstacles([dict(kind="cylinder", center=[3.0, 0.
 
 @jax.jit
 def _solve_one(P):
-    return solve.solve(P, solve.initial_guess(P, _ST), _ST)
+    """(the initial guess, the solution from it)."""
+    x0 = solve.initial_guess(P, _ST)
+    return x0, solve.solve(P, x0, _ST)
 
 
 def _one_robot(p0, goal, r=0.3):
@@ -190,12 +192,66 @@ def test_a_robot_goes_round_an_obstacle_on_its_straight_line():
     """One robot, rest to rest, a cylinder centred on its straight line (and the floor):
     the solve converges and its plan keeps clear of both by dense samples (to 1 cm: the
     constraints are sampled), where the straight line would pass through the axis."""
-    sol = jax.device_get(_solve_one(_one_robot([0.0, 0.0, 1.0], [6.0, 0.0, 1.0])))
+    sol = jax.device_get(_solve_one(_one_robot([0.0, 0.0, 1.0], [6.0, 0.0, 1.0]))[1])
     assert int(sol.status) == solve.CONVERGED
     pos, clear = _dense_clearance(sol)
     assert np.min(clear) > -0.01
     assert np.min(pos[:, 2]) - 0.3 > -0.01
     assert np.allclose(pos[-1], [6.0, 0.0, 1.0], atol=1e-6)
+
+
+# three NLPs of _ST: a pillar and the ground (static rows), another robot held near the path
+_CASES = [([0.0, 0.0, 1.0], [6.0, 0.0, 1.0], [4.6, 0.9, 1.0]),
+          ([0.0, -1.0, 0.5], [6.0, 1.0, 2.0], [1.8, 0.4, 1.4]),
+          ([0.5, 0.8, 1.5], [5.5, -0.6, 0.6], [1.6, -0.6, 1.0])]
+
+
+def _with_other(p0, goal, other, r=0.3):
+    P = _one_robot(p0, goal, r)
+    return P._replace(others=Trajectory.hold(jnp.asarray([other], float)),
+                      other_radius=jnp.asarray([r], float), other_mask=jnp.ones((1,), bool))
+
+
+@jax.jit
+def _values(P, xs):
+    """The objective and the constraints (flattened; the static rows' apart) at xs."""
+    def fg(x):
+        g = nlp.constraints(x, P, _ST)
+        return nlp.objective(x, P, _ST), jnp.concatenate([jnp.ravel(a) for a in g]), g.static
+
+    return jax.vmap(fg)(xs)
+
+
+def test_casadi_ipopt_reference_with_static_rows_is_the_same_nlp():
+    """jaxplan.reference_casadi (jaxplan's objective and constraints traced to CasADi SX)
+    on NLPs with static rows (a pillar and the ground) and another robot: CasADi's
+    objective and constraints equal jaxplan's at points around the guesses to 1e-10
+    relative, the static rows' among them (some violated there); IPOPT with CasADi's
+    own derivatives and jaxplan's solver reach the same optimum from the same start
+    (relative objective gap <= 1e-6, no larger violation)."""
+    pytest.importorskip("casadi")
+    from jaxplan import reference_casadi as rc
+
+    rng = np.random.default_rng(5)
+    static_violated = 0
+    for k, (p0, goal, other) in enumerate(_CASES):
+        P = _with_other(p0, goal, other)
+        x0, sol = jax.device_get(_solve_one(P))
+        xs = x0 + rng.normal(size=(3, _ST.n_x)) * 0.3
+        fj, gj, gs = jax.device_get(_values(P, jnp.asarray(xs)))
+        F = rc.casadi_functions(P, _ST)
+        for x, f_ref, g_ref in zip(xs, fj, gj, strict=True):
+            f, g = F(x, rc.flat_params(P))
+            assert abs(float(f) - f_ref) <= 1e-10 * abs(f_ref), (k, float(f), f_ref)
+            np.testing.assert_allclose(np.asarray(g).ravel(), g_ref, rtol=1e-10,
+                                       atol=1e-10 * np.max(np.abs(g_ref)))
+        static_violated += int(np.sum(gs < 0))
+        r = rc.solve_ipopt(P, x0, _ST)
+        assert int(sol.status) == solve.CONVERGED and r.converged, (k, sol.status, r)
+        assert abs(float(sol.objective) - r.objective) <= 1e-6 * abs(r.objective), (
+            k, float(sol.objective), r.objective)
+        assert float(sol.ineq_violation) <= max(r.ineq_violation, 1e-8)
+    assert static_violated > 0
 
 
 def test_a_robot_that_starts_inside_its_planning_radius_plans_out():
@@ -208,7 +264,7 @@ def test_a_robot_that_starts_inside_its_planning_radius_plans_out():
     w = _PILLAR
     c0 = signed_distance(w.kind, w.center, w.half, w.radius, np.asarray([start]))[0, 0] - r
     assert -0.05 < c0 < 0.0
-    sol = jax.device_get(_solve_one(P))
+    sol = jax.device_get(_solve_one(P)[1])
     assert int(sol.status) == solve.CONVERGED
     pos, clear = _dense_clearance(sol, r)
     assert np.min(clear) > c0 - 0.01

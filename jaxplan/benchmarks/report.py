@@ -2,6 +2,9 @@
 
     markdown(results, *, machine, commit, date) -> str
     write_markdown(path, results)     the same, with this machine, commit and date
+    write_readme(path, results)       README's block after README_MARK: a header line (no
+                                      commit: the page's names it) and
+                                      the product table's main rows (the page's rows)
 
 ``results`` is what `jaxplan bench all --json FILE` writes (``{"predict": ...,
 "solver": ..., "sim": ...}``; any of them may be missing); each present benchmark gets a
@@ -17,11 +20,14 @@ import platform
 import subprocess
 from pathlib import Path
 
+import numpy as np
+
 from jaxplan.fileio import atomic_write_text
 
-__all__ = ["markdown", "write_markdown"]
+__all__ = ["markdown", "readme_lines", "replace_readme_block", "write_markdown", "write_readme"]
 
-COMMAND = "make bench (jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md)"
+COMMAND = ("make bench (jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md "
+           "--readme README.md)")
 
 
 def _ms(x) -> str:
@@ -83,10 +89,170 @@ def _solver(r: dict) -> list[str]:
                      f"{_ms(b['ms'])}: {b['solves_per_s']:,.0f} robot-NLP solves/s "
                      f"(timed calls {lo:,.0f}-{hi:,.0f}/s), {_pct(b['converged'])} converged",
                      f"{b['ratio_vs_slsqp_serial']:.0f}x serial SLSQP; target >= 5,000/s"))
-    return ["## Solver (`jaxplan bench solver`)", "",
+    return [*_product(r), "## Solver, more figures (`jaxplan bench solver`)", "",
             "The paper's NLP (one quintic per axis + T, barrier + constraint collisions), "
-            "antipodal fleets, free ends; SLSQP on the identical NLPs from the same starts.",
+            "antipodal fleets, free ends; SLSQP on the identical NLPs from the same starts; "
+            "the whole machine (JAX on its CPU devices, SLSQP serially).",
             "", *_table(rows), ""]
+
+
+def _verdict(ok: bool, why: str = "") -> str:
+    return "met" if ok else f"**not met**{': ' + why if why else ''}"
+
+
+def _gap_why(*refs) -> str:
+    """Which side ended lower, and by how much, in the pairs beyond 1e-6."""
+    lo = min(x["rel_gap_min"] for x in refs)
+    hi = max(x["rel_gap_max"] for x in refs)
+    why = []
+    if lo < -1e-6:
+        why.append(f"JAX ended lower by up to {-lo:.1e}")
+    if hi > 1e-6:
+        why.append(f"JAX ended higher by up to {hi:.1e}")
+    return "; ".join(why)
+
+
+def _product_table(r: dict) -> tuple[list[str], dict[str, str]]:
+    """The product / paper NLP against IPOPT (CasADi) and SLSQP, with the issue's
+    targets: (the table's two header lines, its rows by key in order)."""
+    kinds = [k for k in ("product", "paper") if k in r]
+    head = "| measure | " + " | ".join(f"{k} NLP" for k in kinds) + " | target (product NLP) |"
+    rows: dict[str, str] = {}
+    pr = r["product"]
+    f, ip, sq = pr["fleet10"], pr["ipopt10"], pr["slsqp10"]
+    load = pr.get("loadavg_1min")
+    key = iter(["n_x", "warm", "cold", "ipopt", "slsqp", "slsqp_cold", "gap", "violation",
+                "whole_machine"])
+
+    def row(what, fn, target=""):
+        rows[next(key)] = (f"| {what} | " + " | ".join(fn(r[k]) for k in kinds)
+                           + f" | {target} |")
+
+    row("variables n_x (segments, coast samples, static rows)",
+        lambda x: f"{x['nlp']['n_x']} ({x['nlp']['segments']}, {x['nlp']['n_coast_samples']}, "
+                  f"{x['nlp'].get('n_static', 0)})")
+    row("JAX, 10-robot replan, warm (median of the replans' medians)",
+        lambda x: f"{_ms(x['fleet10']['warm_ms'])}, {_pct(x['fleet10']['warm_conv'])} converged, "
+                  f"<= {x['fleet10']['warm_iters_max']} iterations",
+        "<= 5 ms: " + _verdict(f["warm_ms"] <= 5.0, _warm_why(f, load)))
+    row("JAX, cold (initial guesses included) / warm",
+        lambda x: f"{_ms(x['fleet10']['cold_ms'])} ({x['cold_over_warm']:.2f}x warm)",
+        "cold <= 2x warm: " + _verdict(pr["cold_over_warm"] <= 2.0,
+                                       f"{pr['cold_over_warm']:.2f}x"))
+    row("IPOPT (CasADi, SX derivatives), 10 NLPs one after another, warm / cold",
+        lambda x: f"{_ms(x['ipopt10']['warm_ms'])} / {_ms(x['ipopt10']['cold_ms'])}: "
+                  f"JAX {x['ratio_vs_ipopt_warm']:.1f}x / {x['ratio_vs_ipopt_cold']:.1f}x faster",
+        ">= 10x warm: " + _verdict(pr["ratio_vs_ipopt_warm"] >= 10,
+                                   f"{pr['ratio_vs_ipopt_warm']:.1f}x"))
+    row("NLopt SLSQP, warm: total / callbacks taken out",
+        lambda x: f"{_ms(x['slsqp10']['warm_ms'])} / {_ms(x['slsqp10']['warm_algorithm_ms'])}: "
+                  f"JAX {x['ratio_vs_slsqp_warm']:.1f}x / "
+                  f"{x['ratio_vs_slsqp_algorithm_warm']:.1f}x faster",
+        ">= 10x without callbacks: " + _verdict(
+            pr["ratio_vs_slsqp_algorithm_warm"] >= 10,
+            f"{pr['ratio_vs_slsqp_algorithm_warm']:.1f}x: SLSQP's own work is "
+            f"{sq['warm_algorithm_ms'] / 10:.1f} ms per NLP (median "
+            f"{sq['iterations_or_evals_median']:.0f} evaluations), JAX's "
+            f"{f['warm_ms'] / 10:.2f} ms"))
+    row("NLopt SLSQP, cold: total / callbacks taken out",
+        lambda x: f"{_ms(x['slsqp10']['cold_ms'])} / {_ms(x['slsqp10']['cold_algorithm_ms'])}: "
+                  f"{x['ratio_vs_slsqp_cold']:.1f}x / {x['ratio_vs_slsqp_algorithm_cold']:.1f}x")
+    gap_ok = max(ip["abs_rel_gap_max"], sq["abs_rel_gap_max"]) <= 1e-6
+    viol_ok = ip["jax_max_violation"] <= max(ip["ref_max_violation"], sq["ref_max_violation"],
+                                             1e-8)
+
+    def gaps(x):
+        a, b = x["ipopt10"], x["slsqp10"]
+        return (f"IPOPT {a['rel_gap_min']:.1e} .. {a['rel_gap_max']:.1e} "
+                f"({a['pairs_gap_over_1e6']} of {a['pairs']} beyond 1e-6); SLSQP "
+                f"{b['rel_gap_min']:.1e} .. {b['rel_gap_max']:.1e} "
+                f"({b['pairs_gap_over_1e6']} of {b['pairs']})")
+
+    row("objective gap (JAX - ref) / max(1, abs(ref)), every pair (negative: JAX lower)", gaps,
+        "abs(gap) <= 1e-6: " + _verdict(gap_ok, _gap_why(ip, sq)))
+    row("largest violation (m^2): JAX / IPOPT / SLSQP",
+        lambda x: f"{x['ipopt10']['jax_max_violation']:.1e} / "
+                  f"{x['ipopt10']['ref_max_violation']:.1e} / "
+                  f"{x['slsqp10']['ref_max_violation']:.1e}",
+        "no worse: " + _verdict(viol_ok))
+    if not all("whole_machine" in r[k] for k in kinds):
+        next(key)
+    else:
+        row("the whole machine: JAX warm; ratios to IPOPT / SLSQP without callbacks",
+            lambda x: f"{_ms(x['whole_machine']['fleet10']['warm_ms'])}; "
+                      f"{x['whole_machine']['ratio_vs_ipopt_warm']:.1f}x / "
+                      f"{x['whole_machine']['ratio_vs_slsqp_algorithm_warm']:.1f}x "
+                      f"(references on {x['whole_machine']['workers']} processes)")
+    if "fleet100" in pr:
+        g = pr["fleet100"]
+        rows["fleet100"] = (
+            f"| 100 robots, every other robot in every NLP, warm (whole machine) | "
+            f"{_ms(g['warm_ms'])}, {_pct(g['warm_conv'])} converged; iterations per lane median "
+            f"{g['warm_iters_median']:.0f}, max {g['warm_iters_max']}; "
+            f"{g['warm_iters_sum_per_replan']:.0f} lane-iterations per replan at "
+            f"{1e3 * g['warm_ms_per_lane_iteration']:.0f} us each |"
+            + " |" * (len(kinds) - 1)
+            + " <= 50 ms: " + _verdict(g["warm_ms"] <= 50.0, _fleet100_why(g)) + " |")
+    if "obstacles20" in pr:
+        rows["obstacles"] = _obstacles_row(pr["obstacles20"], len(kinds))
+    return [head, "|---|" + "---|" * len(kinds) + "---|"], rows
+
+
+def _warm_why(f: dict, load) -> str:
+    why = f"{_ms(f['warm_ms'])} on one core"
+    if "warm_lane_iters_per_replan" in f:
+        n = f["warm_lane_iters_per_replan"]
+        why += (f": {n:.0f} lane-iterations per replan at {1e3 * f['warm_ms'] / n:.0f} us "
+                "each")
+    return why + (f" (load average {load:.1f})" if load else "")
+
+
+def _fleet100_why(g: dict) -> str:
+    return (f"{_ms(g['warm_ms'])}: {g['warm_iters_sum_per_replan']:.0f} lane-iterations per "
+            f"replan (median {g['warm_iters_median']:.0f} per lane) at "
+            f"{1e3 * g['warm_ms_per_lane_iteration']:.0f} us each, each lane's NLP holding "
+            "the 99 others")
+
+
+def _obstacles_row(o: dict, n_kinds: int) -> str:
+    """The 10-robot warm replan with and without the obstacles (issue #32's row)."""
+    w, n = o["with"], o["none"]
+    per = lambda x: 1e3 * x["warm_ms"] / max(1.0, float(np.median(x["warm_iters_sum"])))
+    its = lambda x: float(np.median(x["warm_iters_sum"]))
+    why = (f"{o['warm_ratio']:.2f}x: lane-iterations per replan {its(w):.0f} vs {its(n):.0f}, "
+           f"{per(w):.0f} vs {per(n):.0f} us each "
+           f"({w['n_static']} static rows vs {n['n_static']})")
+    return (f"| 10-robot warm fleet replan with {o['obstacles']} obstacles vs none (random_"
+            f"obstacles world, arena walls and ceiling in both; whole machine) | "
+            f"{_ms(w['warm_ms'])} vs {_ms(n['warm_ms'])}: {o['warm_ratio']:.2f}x, "
+            f"{_pct(w['warm_conv'])} / {_pct(n['warm_conv'])} converged |"
+            + " |" * (n_kinds - 1)
+            + " <= 1.5x: " + _verdict(o["warm_ratio"] <= 1.5, why) + " |")
+
+
+def _product(r: dict) -> list[str]:
+    """The product / paper section of the page."""
+    if "product" not in r:
+        return []
+    head, rows = _product_table(r)
+    pr = r["product"]
+    f, load = pr["fleet10"], pr.get("loadavg_1min")
+    intro = ("The product's NLP is the one `jaxplan run` solves with the planner's defaults "
+             "(2 quintic segments per axis, 8 coast samples, the default world's ground "
+             "z >= 0 as a static row, the default weights, the safety margin, the planner's "
+             "prediction and iteration cap: experiment.structures and fleet_params); the "
+             "paper's is 1 segment, no coast, no static row. A 10-robot antipodal fleet: the "
+             "cold replan and "
+             f"{pr.get('warm_replans', '')} warm replans (the planner's warm start), each "
+             f"timed {pr.get('repeats', '')} times (medians); IPOPT (CasADi, exact SX "
+             "derivatives, MUMPS) and NLopt SLSQP (JAX callbacks) solve the same NLPs one "
+             "after another from the same starts. One core against one core: a child "
+             "process pinned to one CPU with one JAX device and one XLA thread "
+             f"(CPU / wall of JAX's timed calls {f['cpu_per_wall']:.2f})"
+             + (f"; 1-minute load average {load:.1f} on this machine during the run." if load
+                else "."))
+    return ["## Solver: the product's NLP against IPOPT and SLSQP (`jaxplan bench solver`)",
+            "", intro, "", *head, *rows.values(), ""]
 
 
 def _sim(r: dict) -> list[str]:
@@ -128,6 +294,50 @@ def markdown(results: dict, *, machine: str, commit: str, date: str) -> str:
         if name in results:
             lines += section(results[name])
     return "\n".join(lines)
+
+
+README_MARK = ("<!-- the header line and the table below are written by `make bench` "
+               "(jaxplan bench --readme README.md): jaxplan/benchmarks/report.py -->")
+README_ROWS = ("warm", "cold", "ipopt", "slsqp", "gap", "violation", "fleet100", "obstacles")
+
+
+def readme_lines(results: dict, *, machine: str, commit: str, date: str) -> list[str]:
+    """README's benchmark block: one header line (the command, machine, date and load;
+    the commit is the page's), a blank line, the product table's main rows (each a row
+    of the page)."""
+    r = results["solver"]
+    head, rows = _product_table(r)
+    load = r["product"].get("loadavg_1min")
+    # README holds no commit hash (tests/test_docs.py): the page's header line names it
+    line = (f"`make bench`; {machine}; {date}"
+            + (f"; 1-minute load average {load:.1f}" if load is not None else "")
+            + ". The product's NLP against IPOPT and SLSQP, one core against one core; every "
+              "figure, how it is measured and the commit: "
+              "[docs/BENCHMARKS.md](docs/BENCHMARKS.md).")
+    return [line, "", *head, *(rows[k] for k in README_ROWS if k in rows)]
+
+
+def replace_readme_block(text: str, lines: list[str]) -> str:
+    """``text`` with the block after :data:`README_MARK` (a header line, a blank line, a
+    table) replaced by ``lines``."""
+    old = text.split("\n")
+    try:
+        i = old.index(README_MARK)
+    except ValueError:
+        raise ValueError(f"no line {README_MARK!r} to write the benchmark table after") from None
+    j = i + 3  # the header line, the blank line, then the table's lines
+    while j < len(old) and old[j].startswith("|"):
+        j += 1
+    return "\n".join(old[:i + 1] + lines + old[j:])
+
+
+def write_readme(path, results: dict) -> Path:
+    """Rewrite README's benchmark block (:func:`readme_lines`) in ``path``."""
+    date = datetime.datetime.now(datetime.UTC).date().isoformat()
+    lines = readme_lines(results, machine=_machine(), commit=_commit(), date=date)
+    p = Path(path)
+    atomic_write_text(p, replace_readme_block(p.read_text(encoding="utf-8"), lines))
+    return p
 
 
 def _machine() -> str:

@@ -1,14 +1,35 @@
-"""`jaxplan bench solver`: the JAX AL-SQP against NLopt SLSQP on the same NLPs.
+"""`jaxplan bench solver`: the JAX AL-SQP against IPOPT (CasADi) and NLopt SLSQP on the
+same NLPs from the same starts.
 
 Run:  python -m jaxplan.benchmarks.solver [--json FILE] [--quick]
-(the lead wires it as `jaxplan bench solver`: call :func:`main`).
+(`jaxplan bench solver` calls :func:`run`).
 
-Its problems come from :mod:`jaxplan.testing`.
+Two NLPs (:func:`nlp_setup`): "product", the one `jaxplan run` solves with the planner's
+defaults, built by experiment.structures and experiment.fleet_params as the planner
+builds it (two quintic segments per axis, 8 coast samples, the default world's ground
+z >= 0 as a static row, the default weights, the safety margin, the planner's
+prediction weight, iteration cap and tolerance), and "paper", the paper's (one quintic
+per axis, no coast, no static row).  For each (:func:`compare`): a 10-robot
+antipodal fleet's cold replan and 4 warm replans (the warm start as the planner makes
+it: the previous plan shifted and re-fitted, the previous multipliers and penalty), the
+JAX fleet solve against IPOPT and SLSQP solving the same NLPs one after another from
+the same starts, each timed as medians of the same number of repeats.  One core against
+one core: a child process pinned to one CPU (sched_setaffinity), one JAX CPU device and
+one XLA thread (:data:`ONE_CORE_ENV`); the whole machine against the whole machine: JAX
+in this process (its CPU devices), the references over one process per core.  Also the
+100-robot product fleet (every other robot in every NLP), warm, and the figures this
+benchmark has always had (``fleet10``, ``slsqp10_*``, ``fleet100``, ``fleet100_k``,
+``batch64x10``: the paper's NLP, the whole machine), and ``product.obstacles20``
+(:func:`obstacles_row`): the product NLP's 10-robot warm replan among 20 obstacles
+against the same fleet and arena without them.
+
+Its fleets come from :mod:`jaxplan.testing` and jaxplan/scenarios/worlds.py.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import statistics
 import sys
@@ -21,9 +42,10 @@ import numpy as np
 import jaxplan  # noqa: F401  (float64)
 from jaxplan import planner as _planner
 from jaxplan import solve
-from jaxplan.nlp import NLPStructure
+from jaxplan.nlp import Limits, NLPStructure
 from jaxplan.reference import solve_slsqp
 from jaxplan.testing import antipodal, fleet_params, index_params
+from jaxplan.world import static_rows
 
 # ---------------------------------------------------------------------- benchmark
 DT = 0.125
@@ -106,11 +128,320 @@ def _slsqp_serial(case, structure):
                 rel_gap_max=float(max(gaps)), rel_gap_median=float(np.median(gaps)))
 
 
+# ---------------------------------------------------------------------- product vs paper
+# one core: one CPU (the child pins itself), one JAX CPU device, one XLA thread, one
+# OpenMP / BLAS thread for the references
+ONE_CORE_ENV = {"JAXPLAN_CPU_DEVICES": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                "XLA_FLAGS_EXTRA": "--xla_cpu_multi_thread_eigen=false "
+                                   "intra_op_parallelism_threads=1"}
+WARM_STEPS = 4  # warm replans compared per fleet
+PAPER_MAX_ITERS = 60
+
+
+def _planner_setup(config, scenario=None):
+    """(structure, settings, fleet_params keywords) of the NLPs `jaxplan run` builds for
+    ``config`` (its scenario, or ``scenario``): experiment.structures and
+    experiment.fleet_params, so the static rows (the ground in 3-D, the obstacles and
+    workspace faces of a world) are the planner's.  One vehicle's radius and limits
+    (the first robot's) stand for the fleet's."""
+    from jaxplan import experiment
+    from jaxplan.config import build_scenario
+
+    sc = scenario if scenario is not None else build_scenario(config)
+    n_static = static_rows(sc.world).mask.shape[0]
+    st = experiment.structures(config, n_static=n_static).planner.nlp
+    fp = experiment.fleet_params(config, sc, n_static=n_static)
+    first = lambda a: float(np.asarray(a).reshape(-1)[0])
+    kw = dict(w=fp.weights, lim=Limits(*(first(a) for a in fp.limits)),
+              radius=first(fp.radius), t_min=float(fp.t_min),
+              prediction_weight=float(fp.prediction_weight), static=fp.static)
+    return st, fp.settings, kw
+
+
+def _product_config():
+    """The planner's defaults on two free-ended fireflies in 3-D (the default world: the
+    ground z >= 0, one static row): only the NLP's structure and parameters are used."""
+    from jaxplan.config import parse_config
+
+    robot = lambda y: {"vehicle": "firefly", "start": [0.0, y, 1.5], "goal": [4.0, y, 1.5]}
+    return parse_config({"name": "bench_product", "robots": [robot(0.0), robot(2.0)]})
+
+
+@functools.cache
+def nlp_setup(kind: str):
+    """(structure, settings, fleet_params keywords) of the "product" or "paper" NLP."""
+    if kind == "paper":  # the benchmark's NLP from the start (60 iterations, as then)
+        return NLPStructure(), solve.SolverSettings(max_iters=PAPER_MAX_ITERS), {}
+    return _planner_setup(_product_config())
+
+
+def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=None,
+                 fleet=None):
+    """JAX on an M-robot fleet: the cold replan and ``steps`` warm ones, each timed
+    (median of ``reps`` calls); the cases (params, start, solution) for the references.
+    setup: (structure, settings, keywords) instead of :func:`nlp_setup`'s; fleet:
+    (starts, goals) instead of an antipodal fleet."""
+    structure, settings, kw = setup or nlp_setup(kind)
+    rng = np.random.default_rng(seed)
+    pos, goals = fleet if fleet is not None else antipodal(M, radius_m, rng)
+    z = np.zeros_like(pos)
+    P, idx = fleet_params(pos, z, z, goals, max_neighbors=max_neighbors, return_neighbors=True,
+                          **kw)
+    t0 = time.perf_counter()
+    jax.block_until_ready(_cold(P, structure, settings))
+    compile_s = time.perf_counter() - t0
+    c0, t0 = _cpu_s(), time.perf_counter()
+    sol, ms = _timed(lambda P: _cold(P, structure, settings), P, repeats=reps)
+    # CPU seconds per wall second of the timed cold calls: <= 1 on one core
+    cpu_per_wall = (_cpu_s() - c0) / (time.perf_counter() - t0)
+    x0 = jax.block_until_ready(solve.initial_guess_batch(P, structure))
+    cases = [dict(P=P, x0=x0, sol=jax.device_get(sol), ms=ms)]
+    ws = jax.jit(jax.vmap(lambda tr, p: solve.warm_start(tr, DT, p, structure)))
+    for _ in range(steps):
+        tr = sol.traj
+        pos, vel, acc = (np.asarray(a) for a in tr.state_at(jnp.full(tr.batch_shape, DT)))
+        P, idx_new = fleet_params(pos, vel, acc, goals, max_neighbors=max_neighbors,
+                                  return_neighbors=True, **kw)
+        x0 = ws(tr, P)
+        mult = sol.multipliers._replace(
+            collision=_planner.remap_slots(sol.multipliers.collision, idx, idx_new))
+        idx = idx_new
+        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu)
+        sol, ms = _timed(fn, P, x0, mult, sol.penalty, repeats=reps)
+        cases.append(dict(P=P, x0=x0, sol=jax.device_get(sol), ms=ms))
+    return structure, cases, compile_s, cpu_per_wall
+
+
+def _cpu_s() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _ref_solve(kind, P, x0s, which):
+    """Solve the NLPs of one fleet one after another with a reference: per-NLP (wall s,
+    callback s, objective, violation, converged, evaluations)."""
+    from jaxplan.reference_casadi import solve_ipopt
+
+    structure, _, _ = nlp_setup(kind)
+    out = []
+    for i in range(np.shape(x0s)[0]):
+        p, x = index_params(P, i), np.asarray(x0s[i])
+        if which == "ipopt":
+            r = solve_ipopt(p, x, structure)
+            out.append((r.wall_s, 0.0, r.objective, r.ineq_violation, r.converged, r.iterations))
+        else:
+            r = solve_slsqp(p, x, structure)
+            out.append((r.wall_s, r.callback_s, r.objective, r.ineq_violation, r.converged,
+                        r.evaluations))
+    return out
+
+
+def _ref_job(args):
+    kind, P, x0s, which = args
+    return _ref_solve(kind, P, x0s, which)
+
+
+def _ref_cases(kind, cases, which, reps, workers=1):
+    """A reference on every case: per case the median over ``reps`` of the fleet's wall
+    time (serial sum with one worker; with several, the wall time of the NLPs split over
+    ``workers`` processes), and the last repeat's per-NLP results."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    res = []
+    pool = None
+    if workers > 1:
+        # spawned: each worker imports this module (and so jaxplan: float64)
+        pool = cf.ProcessPoolExecutor(workers, mp.get_context("spawn"))
+        host = lambda c: (jax.device_get(c["P"]), np.asarray(c["x0"]))
+        for c in cases[:1]:  # build each worker's solvers and evaluators first (untimed)
+            P, x0 = host(c)
+            list(pool.map(_ref_job, [(kind, P, x0, which)] * workers))
+    try:
+        for c in cases:
+            walls = []
+            for _ in range(reps):
+                if pool is None:
+                    r = _ref_solve(kind, c["P"], c["x0"], which)
+                    w = sum(a[0] for a in r)
+                    cb = sum(a[1] for a in r)
+                    walls.append((w, cb, w - cb))
+                else:
+                    P, x0 = host(c)
+                    parts = np.array_split(np.arange(x0.shape[0]), workers)
+                    jobs = [(kind, jax.tree.map(lambda a, ix=ix: a[ix], P), x0[ix], which)
+                            for ix in parts]
+                    t0 = time.perf_counter()
+                    parts_r = list(pool.map(_ref_job, jobs))
+                    w = time.perf_counter() - t0
+                    r = [a for part in parts_r for a in part]
+                    # the work without callbacks: the slowest process's
+                    alg = max(sum(a[0] - a[1] for a in part) for part in parts_r)
+                    walls.append((w, sum(a[1] for a in r), alg))
+            ms = 1e3 * statistics.median(w[0] for w in walls)
+            cb = 1e3 * statistics.median(w[1] for w in walls)
+            alg = 1e3 * statistics.median(w[2] for w in walls)
+            res.append(dict(ms=ms, callback_ms=cb, algorithm_ms=alg, per_nlp=r))
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    return res
+
+
+def _pairs(cases, refs):
+    """Objective gaps (JAX - ref) / max(1, |ref|) and violations over every NLP."""
+    gaps, vj, vr, conv = [], [], [], []
+    for c, r in zip(cases, refs, strict=True):
+        for i, (_, _, obj, viol, ok, _) in enumerate(r["per_nlp"]):
+            gaps.append((float(c["sol"].objective[i]) - obj) / max(1.0, abs(obj)))
+            vj.append(float(c["sol"].ineq_violation[i]))
+            vr.append(viol)
+            conv.append(ok)
+    g = np.asarray(gaps)
+    return dict(rel_gap_max=float(np.max(g)), rel_gap_min=float(np.min(g)),
+                abs_rel_gap_max=float(np.max(np.abs(g))),
+                pairs_gap_over_1e6=int(np.sum(np.abs(g) > 1e-6)), pairs=len(gaps),
+                jax_max_violation=float(np.max(vj)), ref_max_violation=float(np.max(vr)),
+                ref_converged=float(np.mean(conv)))
+
+
+def compare(kind: str, reps: int = 3, steps: int = WARM_STEPS, workers: int = 1) -> dict:
+    """The 10-robot comparison of one NLP kind in this process (module doc)."""
+    structure, cases, compile_s, cpu_per_wall = _fleet_cases(kind, 10, 5.0, 0, steps, reps)
+    ip = _ref_cases(kind, cases, "ipopt", reps, workers)
+    sq = _ref_cases(kind, cases, "slsqp", reps, workers)
+    med = lambda xs: float(statistics.median(xs))
+    conv = lambda c: float(np.mean(c["sol"].status == solve.CONVERGED))
+    jw = med([c["ms"] for c in cases[1:]])
+    out = {
+        "nlp": dict(structure.__dict__, n_x=structure.n_x),
+        "fleet10": dict(cold_ms=cases[0]["ms"], warm_ms=jw,
+                        warm_ms_all=[c["ms"] for c in cases[1:]], compile_s=compile_s,
+                        cold_conv=conv(cases[0]), warm_conv=med([conv(c) for c in cases[1:]]),
+                        cold_iters_max=int(np.max(cases[0]["sol"].iterations)),
+                        warm_lane_iters_per_replan=med([int(np.sum(c["sol"].iterations))
+                                                        for c in cases[1:]]),
+                        warm_iters_max=int(max(np.max(c["sol"].iterations) for c in cases[1:])),
+                        status_counts={solve.STATUS_NAMES[k]: int(sum(
+                            np.sum(c["sol"].status == k) for c in cases))
+                            for k in solve.STATUS_NAMES},
+                        cpu_per_wall=cpu_per_wall),
+        "repeats": reps, "warm_replans": steps, "workers": workers,
+        "loadavg_1min": __import__("os").getloadavg()[0],
+    }
+    for name, r in (("ipopt10", ip), ("slsqp10", sq)):
+        out[name] = dict(cold_ms=r[0]["ms"], warm_ms=med([x["ms"] for x in r[1:]]),
+                         cold_callback_ms=r[0]["callback_ms"],
+                         warm_callback_ms=med([x["callback_ms"] for x in r[1:]]),
+                         iterations_or_evals_median=med([a[5] for x in r for a in x["per_nlp"]]),
+                         **_pairs(cases, r))
+    s = out["slsqp10"]
+    # SLSQP's own work: its wall time less the time in the JAX callbacks (with several
+    # processes: the slowest process's)
+    s["cold_algorithm_ms"] = sq[0]["algorithm_ms"]
+    s["warm_algorithm_ms"] = med([x["algorithm_ms"] for x in sq[1:]])
+    f = out["fleet10"]
+    out.update(ratio_vs_ipopt_warm=out["ipopt10"]["warm_ms"] / jw,
+               ratio_vs_ipopt_cold=out["ipopt10"]["cold_ms"] / f["cold_ms"],
+               ratio_vs_slsqp_warm=s["warm_ms"] / jw,
+               ratio_vs_slsqp_cold=s["cold_ms"] / f["cold_ms"],
+               ratio_vs_slsqp_algorithm_warm=s["warm_algorithm_ms"] / jw,
+               ratio_vs_slsqp_algorithm_cold=s["cold_algorithm_ms"] / f["cold_ms"],
+               rel_gap_max=max(out["ipopt10"]["rel_gap_max"], s["rel_gap_max"]),
+               cold_over_warm=f["cold_ms"] / jw)
+    return out
+
+
+def _one_core(kind: str, reps: int, steps: int) -> dict:
+    """:func:`compare` in a child process on one core (ONE_CORE_ENV)."""
+    import os
+    import subprocess
+    import tempfile
+
+    env = dict(os.environ)
+    env.update({k: v for k, v in ONE_CORE_ENV.items() if k != "XLA_FLAGS_EXTRA"})
+    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + ONE_CORE_ENV["XLA_FLAGS_EXTRA"]).strip()
+    with tempfile.TemporaryDirectory() as d:
+        out = os.path.join(d, "r.json")
+        subprocess.run([sys.executable, "-m", "jaxplan.benchmarks.solver", "--one-core", kind,
+                        "--reps", str(reps), "--steps", str(steps), "--json", out],
+                       env=env, check=True)
+        with open(out, encoding="utf-8") as fh:
+            return json.load(fh)
+
+
+def _pin_one_cpu() -> int:
+    import os
+
+    cpu = min(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {cpu})
+    return cpu
+
+
+def product_and_paper(quick: bool = False) -> dict:
+    """The product and paper comparisons: one core against one core (child processes),
+    the whole machine against the whole machine, and the 100-robot product fleet."""
+    import os
+
+    reps, steps = (2, 2) if quick else (3, WARM_STEPS)
+    ncpu = len(os.sched_getaffinity(0))
+    out = {}
+    for kind in ("product", "paper"):
+        r = _one_core(kind, reps, steps)
+        r["whole_machine"] = compare(kind, reps, steps, workers=ncpu)
+        out[kind] = r
+    # 100 robots, every other robot in every NLP, the product NLP, warm (whole machine)
+    structure, cases, comp, _ = _fleet_cases("product", 100, 15.0, 1, 2, 1)
+    it = np.concatenate([np.asarray(c["sol"].iterations) for c in cases[1:]])
+    out["product"]["fleet100"] = dict(
+        cold_ms=cases[0]["ms"], warm_ms=float(statistics.median(c["ms"] for c in cases[1:])),
+        compile_s=comp, warm_conv=float(np.mean([np.mean(c["sol"].status == solve.CONVERGED)
+                                                 for c in cases[1:]])),
+        warm_iters_median=float(np.median(it)), warm_iters_max=int(np.max(it)),
+        warm_iters_sum_per_replan=float(it.sum() / len(cases[1:])),
+        warm_ms_per_lane_iteration=float(statistics.median(c["ms"] for c in cases[1:]))
+        / float(it.sum() / len(cases[1:])))
+    return out
+
+
+OBSTACLES = 20  # the world row: a random_obstacles world of this many obstacles
+
+
+def obstacles_row(reps: int = 5, steps: int = WARM_STEPS, obstacles: int = OBSTACLES) -> dict:
+    """The 10-robot warm fleet replan of the product NLP in a world with ``obstacles``
+    random obstacles (jaxplan/scenarios/worlds.py's random_obstacles, seed 0: its
+    starts, goals, arena walls and ceiling) against the same fleet in the same arena
+    without them; JAX in this process, the same repeats and warm replans for both."""
+    from jaxplan.config import build_scenario, parse_config
+
+    cfg = parse_config({"name": "bench_obstacles", "seed": 0,
+                        "scenario": {"kind": "random_obstacles", "count": 10,
+                                     "obstacles": obstacles}})
+    sc = build_scenario(cfg)
+    out = {}
+    for name, scen in (("with", sc), ("none", sc.with_world(sc.world.with_obstacles([])))):
+        setup = _planner_setup(cfg, scen)
+        structure, cases, comp, _ = _fleet_cases(
+            "product", 10, 0.0, 0, steps, reps, setup=setup,
+            fleet=(np.asarray(scen.start), np.asarray(scen.waypoints[:, -1])))
+        conv = [float(np.mean(c["sol"].status == solve.CONVERGED)) for c in cases[1:]]
+        out[name] = dict(n_static=structure.n_static, compile_s=comp, cold_ms=cases[0]["ms"],
+                         warm_ms=float(statistics.median(c["ms"] for c in cases[1:])),
+                         warm_ms_all=[c["ms"] for c in cases[1:]],
+                         warm_conv=float(np.mean(conv)),
+                         warm_iters_sum=[int(np.sum(c["sol"].iterations)) for c in cases[1:]])
+    out.update(obstacles=obstacles, repeats=reps, warm_replans=steps,
+               warm_ratio=out["with"]["warm_ms"] / out["none"]["warm_ms"])
+    return out
+
+
 def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool = True) -> dict:
     """Run every part of the benchmark (module docstring); print it unless ``echo`` is
     False; return the figures."""
     structure = structure or NLPStructure()
-    settings = solve.SolverSettings()
+    settings = solve.SolverSettings(max_iters=PAPER_MAX_ITERS)
     rng = np.random.default_rng(0)
     res = {"structure": structure.__dict__, "backend": jax.default_backend(),
            "xla_flags": __import__("os").environ.get("XLA_FLAGS", "")}
@@ -145,6 +476,8 @@ def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool =
     # speed drifts by up to ~1.7x within minutes, and both figures drift with it
     slsqp_rate = 10 / (res["slsqp10_cold"]["ms"] / 1e3)
     rate = 640 / (ms / 1e3)
+    res.update(product_and_paper(quick))
+    res["product"]["obstacles20"] = obstacles_row(*((2, 2) if quick else (5, WARM_STEPS)))
     res["batch64x10"] = dict(ms=ms, ms_min=lo, ms_max=hi, solves_per_s=rate,
                              solves_per_s_range=[640 / (hi / 1e3), 640 / (lo / 1e3)],
                              slsqp_serial_solves_per_s=slsqp_rate,
@@ -153,6 +486,7 @@ def run(quick: bool = False, structure: NLPStructure | None = None, echo: bool =
                              converged=float(np.mean(np.asarray(sol.status) == 0)))
     if echo:
         report(res)
+        report_product(res)
     return res
 
 
@@ -190,12 +524,51 @@ def report(res: dict) -> None:
           f"{b['slsqp_serial_solves_per_s']:.1f} solves/s in this run", flush=True)
 
 
+def report_product(res: dict) -> None:
+    """Print the product / paper comparison."""
+    for kind in ("product", "paper"):
+        if kind not in res:
+            continue
+        r = res[kind]
+        f, ip, sq = r["fleet10"], r["ipopt10"], r["slsqp10"]
+        print(f"{kind} NLP (n_x {r['nlp']['n_x']}), one core: JAX cold {f['cold_ms']:.2f} ms warm "
+              f"{f['warm_ms']:.2f} ms (cpu/wall {f['cpu_per_wall']:.2f}); IPOPT cold "
+              f"{ip['cold_ms']:.1f} warm {ip['warm_ms']:.1f} ms; SLSQP cold {sq['cold_ms']:.1f} "
+              f"warm {sq['warm_ms']:.1f} ms (algorithm {sq['warm_algorithm_ms']:.1f} ms); ratios "
+              f"warm: IPOPT {r['ratio_vs_ipopt_warm']:.1f}x, SLSQP algorithm "
+              f"{r['ratio_vs_slsqp_algorithm_warm']:.1f}x; gaps IPOPT "
+              f"{ip['rel_gap_min']:.1e}..{ip['rel_gap_max']:.1e}, SLSQP "
+              f"{sq['rel_gap_min']:.1e}..{sq['rel_gap_max']:.1e}", flush=True)
+        w = r.get("whole_machine")
+        if w:
+            print(f"  whole machine: JAX warm {w['fleet10']['warm_ms']:.2f} ms; IPOPT "
+                  f"{w['ratio_vs_ipopt_warm']:.1f}x, SLSQP algorithm "
+                  f"{w['ratio_vs_slsqp_algorithm_warm']:.1f}x", flush=True)
+    if "product" in res and "fleet100" in res["product"]:
+        g = res["product"]["fleet100"]
+        print(f"product, 100 robots warm {g['warm_ms']:.1f} ms, iterations per lane median "
+              f"{g['warm_iters_median']:.0f} max {g['warm_iters_max']}", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="jaxplan bench solver")
     ap.add_argument("--json", default=None)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--one-core", default=None, help=argparse.SUPPRESS)  # the child
+    ap.add_argument("--reps", type=int, default=3, help=argparse.SUPPRESS)
+    ap.add_argument("--steps", type=int, default=WARM_STEPS, help=argparse.SUPPRESS)
+    ap.add_argument("--product-only", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
-    res = run(quick=a.quick)
+    if a.one_core:
+        cpu = _pin_one_cpu()
+        res = compare(a.one_core, a.reps, a.steps)
+        res["one_core"] = dict(cpu=cpu, devices=len(jax.devices()),
+                               xla_flags=__import__("os").environ.get("XLA_FLAGS", ""))
+    elif a.product_only:
+        res = product_and_paper(quick=a.quick)
+        report_product(res)
+    else:
+        res = run(quick=a.quick)
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(res, fh, indent=2, default=str)

@@ -23,6 +23,9 @@
     [workspace] min, max              (per axis, inf = unbounded; 3-D default: z >= 0)
     [[obstacles]] kind = "sphere" | "box" | "cylinder", center, radius, half_extents,
                half_height            (jaxplan/world.py)
+    [tune]     weights (a table: name = {low, high, log}), scenarios, seeds, holdout_seeds,
+               objective, min_success_rate, min_separation_ratio, trials, batch, sampler,
+               enqueue_defaults (read by `jaxplan tune`, jaxplan/tune.py)
 
 Robots: ``goal = [x, y, z]`` (one goal) or ``waypoints = [[x, y, z], ...]`` (several, in
 order; the fleet moves on when every robot reached waypoint w).  ``goal_velocity`` is
@@ -47,7 +50,7 @@ The package: schema.py (defaults, section models), errors.py (one-line errors),
 parse.py (documents -> Config), resolve.py (Config -> config.toml, Scenario).
 """
 
-from jaxplan.config.parse import load_config, parse_config
+from jaxplan.config.parse import load_config, parse_config, tune_scenario_path
 from jaxplan.config.resolve import build_scenario, config_to_dict, config_to_toml
 from jaxplan.config.schema import (
     BACKENDS,
@@ -88,6 +91,10 @@ from jaxplan.config.schema import (
     ROBOT_KEYS,
     SWEEP_ENGINES,
     TOP_KEYS,
+    TUNABLE_WEIGHTS,
+    TUNE_KEYS,
+    TUNE_OBJECTIVES,
+    TUNE_SAMPLERS,
     Config,
     ConfigError,
     FaultsConfig,
@@ -97,6 +104,8 @@ from jaxplan.config.schema import (
     ScenarioConfig,
     SimConfig,
     SweepConfig,
+    TuneConfig,
+    WeightRange,
 )
 
 __all__ = [
@@ -147,9 +156,16 @@ __all__ = [
     "SweepConfig",
     "SWEEP_ENGINES",
     "TOP_KEYS",
+    "TUNABLE_WEIGHTS",
+    "TUNE_KEYS",
+    "TUNE_OBJECTIVES",
+    "TUNE_SAMPLERS",
+    "TuneConfig",
+    "WeightRange",
     "build_scenario",
     "config_to_dict",
     "config_to_toml",
     "load_config",
     "parse_config",
+    "tune_scenario_path",
 ]

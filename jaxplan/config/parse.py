@@ -4,7 +4,9 @@ whole (:func:`parse_config`, :func:`load_config`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import os
 import tomllib
 import typing
 from pathlib import Path
@@ -13,6 +15,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import (
     BeforeValidator,
+    Strict,
     ValidationInfo,
     field_validator,
     model_validator,
@@ -31,14 +34,25 @@ from jaxplan.config.resolve import (
 )
 from jaxplan.config.schema import (
     DEFAULT_SWEEP_ENGINE,
+    DEFAULT_TUNE_BATCH,
+    DEFAULT_TUNE_MIN_SEPARATION_RATIO,
+    DEFAULT_TUNE_MIN_SUCCESS_RATE,
+    DEFAULT_TUNE_OBJECTIVE,
+    DEFAULT_TUNE_SAMPLER,
+    DEFAULT_TUNE_TRIALS,
     MAX_SEED,
     MAX_SWEEP_POINTS,
+    MAX_TUNE_TRIALS,
     OBSTACLE_KEYS,
     OBSTACLE_KINDS,
     ROBOT_KEYS,
     SECTION_CONFIG,
     SWEEP_ENGINES,
     TOP_KEYS,
+    TUNABLE_WEIGHTS,
+    TUNE_KEYS,
+    TUNE_OBJECTIVES,
+    TUNE_SAMPLERS,
     Config,
     ConfigError,
     FaultsConfig,
@@ -51,6 +65,8 @@ from jaxplan.config.schema import (
     Seed,
     SimConfig,
     SweepConfig,
+    TuneConfig,
+    WeightRange,
     WorkspaceConfig,
 )
 from jaxplan.fields import (
@@ -326,15 +342,15 @@ def _parse_weights(raw: Any, key: str, default: float) -> tuple[float, ...]:
     return validate_value(_Weights, raw, key)
 
 
-def _parse_seeds(raw: Any, default: int) -> tuple[int, ...]:
+def _parse_seeds(raw: Any, default: int, key: str = "sweep.seeds") -> tuple[int, ...]:
     if raw is None:
         return (default,)
     if isinstance(raw, dict):
-        as_table(raw, "sweep.seeds")
-        seeds = validate_value(_SeedRange, raw, "sweep.seeds", missing_first=True,
+        as_table(raw, key)
+        seeds = validate_value(_SeedRange, raw, key, missing_first=True,
                           missing="missing; a seed range needs num (and start = 0)")
         return tuple(range(seeds.start, seeds.start + seeds.num))
-    return validate_value(_Seeds, raw, "sweep.seeds")
+    return validate_value(_Seeds, raw, key)
 
 
 def _parse_sweep(raw: Any, planner: PlannerConfig, seed: int) -> SweepConfig:
@@ -346,6 +362,120 @@ def _parse_sweep(raw: Any, planner: PlannerConfig, seed: int) -> SweepConfig:
         seeds=_parse_seeds(t.get("seeds"), seed),
         scenarios=validate_value(_ScenarioNames, t.get("scenarios", []), "sweep.scenarios"),
         engine=validate_value(_SweepEngine, t.get("engine", DEFAULT_SWEEP_ENGINE), "sweep.engine"))
+
+
+# ---------------------------------------------------------------------------------------
+# Tune
+# ---------------------------------------------------------------------------------------
+
+# each tunable weight's domain: what [planner] accepts, and q_dynm > 0 (the prediction's
+# time weight is k_t / q_dynm)
+_WEIGHT_DOMAIN = {"q_dynm": (0.0, False, None), "q_obs": (0.0, True, None),
+                  "q_lim": (0.0, True, None), "k_t": (0.0, True, None),
+                  "k_p": (0.0, False, None), "safety_margin_m": (0.0, True, 10.0)}
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG, kw_only=True)
+class _Range:
+    """A weight's range ``{low, high, log = false}``."""
+
+    low: number()
+    high: number()
+    log: Annotated[bool, Strict()] = False
+
+
+def _parse_range(raw: Any, name: str) -> WeightRange:
+    key = f"tune.weights.{name}"
+    r = validate_value(_Range, as_table(raw, key), key, missing_first=True,
+                       missing="missing; a range needs low and high (and log = false)")
+    lo, closed, hi = _WEIGHT_DOMAIN[name]
+    if r.low < lo or (r.low == lo and not closed):
+        raise InvalidValue(f"{key}.low", f"must be {'>=' if closed else '>'} {lo:g} "
+                                         f"(planner.{name}'s domain), got {show(r.low)}")
+    if hi is not None and r.high > hi:
+        raise InvalidValue(f"{key}.high", f"must be <= {hi:g} (planner.{name}'s domain), "
+                                          f"got {show(r.high)}")
+    if not r.high > r.low:
+        raise InvalidValue(f"{key}.high", f"must be > low = {r.low:g}, got {show(r.high)}")
+    if r.log and r.low <= 0.0:
+        raise InvalidValue(f"{key}.low", f"a log range needs low > 0, got {show(r.low)}")
+    return WeightRange(float(r.low), float(r.high), bool(r.log))
+
+
+def _parse_tune_scenarios(raw: Any, source: str) -> tuple[str, ...]:
+    """Registry names, or paths of TOML configs (relative to the config file; made
+    absolute) whose fleet is used; each file must load."""
+    names = list(validate_value(_TuneScenarios, raw, "tune.scenarios"))
+    for i, name in enumerate(names):
+        if name.endswith(".toml"):
+            path = tune_scenario_path(name, source)
+            try:
+                load_config(path)
+            except ConfigError as e:
+                raise InvalidValue(f"tune.scenarios[{i}]", str(e)) from None
+            names[i] = os.path.abspath(path)  # resolved: config.toml loads anywhere
+        elif name not in SCENARIOS:
+            raise InvalidValue(f"tune.scenarios[{i}]", f"unknown scenario {show(name)}; give "
+                               f"a registry name ({', '.join(SCENARIOS)}) or a .toml config "
+                               "path")
+    if len(set(names)) != len(names):
+        raise InvalidValue("tune.scenarios", "a scenario is named twice")
+    return tuple(names)
+
+
+def tune_scenario_path(name: str, source: str) -> Path:
+    """A [tune] scenarios entry that names a TOML file, resolved against the directory
+    of the config file ``source`` (the working directory for a config from a string)."""
+    p = Path(name)
+    if p.is_absolute() or source.startswith("<"):
+        return p
+    return Path(source).parent / p
+
+
+def _tune_seeds(t: dict, key: str, default: tuple[int, ...]) -> tuple[int, ...]:
+    if key not in t:
+        return default
+    return _parse_seeds(t[key], 0, f"tune.{key}")
+
+
+def _parse_tune(raw: Any, planner: PlannerConfig, seed: int, source: str) -> TuneConfig:
+    t = as_table(raw, "tune")
+    check_keys(t, TUNE_KEYS, "tune")
+    weights_raw = as_table(t.get("weights", {}), "tune.weights")
+    check_keys(weights_raw, TUNABLE_WEIGHTS, "tune.weights")
+    if not weights_raw:
+        raise InvalidValue("tune.weights", "name at least one weight to tune, e.g. "
+                                           "q_obs = {low = 1.0, high = 100.0, log = true}; "
+                                           f"tunable: {', '.join(TUNABLE_WEIGHTS)}")
+    weights = {k: _parse_range(v, k) for k, v in weights_raw.items()}
+    scenario_names = _parse_tune_scenarios(t.get("scenarios", []), source)
+    seeds = _tune_seeds(t, "seeds", (seed,))
+    holdout = () if t.get("holdout_seeds") == [] else _tune_seeds(t, "holdout_seeds", ())
+    if set(seeds) & set(holdout):
+        raise InvalidValue("tune.holdout_seeds", f"seed {min(set(seeds) & set(holdout))} is "
+                                                 "also a training seed; held-out seeds must "
+                                                 "be others")
+    rest = {k: v for k, v in t.items()
+            if k not in ("weights", "scenarios", "seeds", "holdout_seeds")}
+    options = validate_value(_TuneOptions, rest, "tune")
+    return TuneConfig(weights=weights, scenarios=scenario_names, seeds=seeds,
+                      holdout_seeds=holdout, **dataclasses.asdict(options))
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class _TuneOptions:
+    """[tune]'s scalar keys."""
+
+    objective: string(one_of(TUNE_OBJECTIVES)) = DEFAULT_TUNE_OBJECTIVE
+    min_success_rate: number(ge=0.0, le=1.0) = DEFAULT_TUNE_MIN_SUCCESS_RATE
+    min_separation_ratio: number(ge=0.0, le=100.0) = DEFAULT_TUNE_MIN_SEPARATION_RATIO
+    trials: integer(ge=1, le=MAX_TUNE_TRIALS) = DEFAULT_TUNE_TRIALS
+    batch: integer(ge=1, le=MAX_TUNE_TRIALS) = DEFAULT_TUNE_BATCH
+    sampler: string(one_of(TUNE_SAMPLERS)) = DEFAULT_TUNE_SAMPLER
+    enqueue_defaults: Annotated[bool, Strict()] = True
+
+
+_TuneScenarios = Annotated[tuple[string(), ...], BeforeValidator(_scenario_names)]
 
 
 # ---------------------------------------------------------------------------------------
@@ -405,9 +535,11 @@ def _parse(data: Any, source: str) -> Config:
     workspace = validate_value(WorkspaceConfig, as_table(t.get("workspace", {}), "workspace"),
                                "workspace", dim=N)
     obstacles = _parse_obstacles(t.get("obstacles", []), N)
+    tune = _parse_tune(t["tune"], planner, seed, source) if "tune" in t else None
     config = Config(name=name, description=description, seed=seed, planner=planner,
                     limits=limits, sim=sim, robots=robots, scenario=scenario, sweep=sweep,
-                    faults=faults, workspace=workspace, obstacles=obstacles, source=source)
+                    faults=faults, workspace=workspace, obstacles=obstacles, tune=tune,
+                    source=source)
     _check_fleet(config, robot_keys)
     return config
 

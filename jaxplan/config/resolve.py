@@ -64,6 +64,10 @@ def config_to_dict(config: Config) -> dict[str, Any]:
         d["workspace"] = ws
     if config.obstacles:
         d["obstacles"] = [_dump(o, exclude_none=True) for o in config.obstacles]
+    if config.tune is not None:
+        tune = _dump(config.tune)
+        tune["weights"] = tune.pop("weights")  # a sub-table: after the scalar keys
+        d["tune"] = tune
     return d
 
 
@@ -79,8 +83,13 @@ def config_to_toml(config: Config) -> str:
     lines += [f"{k} = {_toml_value(v)}" for k, v in d.items()
               if not isinstance(v, (dict, list))]
     for k, v in d.items():
-        if isinstance(v, dict):
-            lines += ["", f"[{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
+        if isinstance(v, dict):  # a section; a dict in it is a sub-table ([tune.weights])
+            lines += ["", f"[{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()
+                                       if not isinstance(vv, dict)]
+            for kk, vv in v.items():
+                if isinstance(vv, dict):
+                    lines += ["", f"[{k}.{kk}]"] + [f"{kkk} = {_toml_value(x)}"
+                                                    for kkk, x in vv.items()]
         elif isinstance(v, list):  # array of tables
             for row in v:
                 lines += ["", f"[[{k}]]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in row.items()]
@@ -88,7 +97,10 @@ def config_to_toml(config: Config) -> str:
 
 
 def _toml_value(v: Any) -> str:
-    """One TOML value: scalars by tomli_w, arrays inline (one per line when long)."""
+    """One TOML value: scalars by tomli_w, arrays and tables inline (an array one entry
+    per line when long)."""
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
     if isinstance(v, (list, tuple)):
         items = [_toml_value(x) for x in v]
         one = "[" + ", ".join(items) + "]"

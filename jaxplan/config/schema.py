@@ -49,7 +49,7 @@ DEFAULT_DEGREE = 5
 DEFAULT_SEGMENTS = 2                     # rest ends need shape freedom (docs/MATH.md 2); paper: 1
 DEFAULT_END_STATE = "free"               # the paper's position-only end state
 DEFAULT_MAX_ITERS = 50                   # solver iterations per replan (bounded loop)
-DEFAULT_TOL = 1e-6                       # solver stationarity / feasibility tolerance
+DEFAULT_TOL = 1e-8                       # solver feasibility (m^2) / complementarity tolerance
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
 DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
 DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
@@ -87,6 +87,18 @@ MAX_SWEEP_POINTS = 10000
 MAX_SEED = 2**63 - 1
 MAX_ITERS = 1_000_000
 
+# [tune] (jaxplan/tune.py)
+TUNABLE_WEIGHTS = ("q_dynm", "q_obs", "q_lim", "k_t", "k_p", "safety_margin_m")
+TUNE_SAMPLERS = ("tpe", "cmaes")
+TUNE_OBJECTIVES = ("median_makespan_s", "mean_makespan_s", "max_makespan_s")
+DEFAULT_TUNE_TRIALS = 50
+DEFAULT_TUNE_BATCH = 4                   # trials asked, run and told together
+DEFAULT_TUNE_SAMPLER = "tpe"             # why: docs/TUNING.md, "Choosing the sampler"
+DEFAULT_TUNE_OBJECTIVE = "median_makespan_s"
+DEFAULT_TUNE_MIN_SUCCESS_RATE = 1.0
+DEFAULT_TUNE_MIN_SEPARATION_RATIO = 1.1
+MAX_TUNE_TRIALS = 100_000
+
 
 class ConfigError(ValueError):
     """An invalid config: one line ``<file>: <key>: <problem>``."""
@@ -105,7 +117,10 @@ class PlannerConfig:
 
     replan_hz (Hz); q_dynm, q_obs, q_lim, k_t (>= 0) objective weights; k_p (1/m, > 0);
     collision in COLLISION_MODES; degree (>= 5) and segments (>= 1) of the polynomial
-    per axis; end_state "free" | "rest" (default for robots); max_iters, tol, n_samples;
+    per axis; end_state "free" | "rest" (default for robots); max_iters (the solver's
+    iteration cap per replan); tol (> 0): the solver's feasibility tolerance (m^2, on
+    d^2 - rho^2) and complementarity tolerance (SolverSettings.tol_feasibility and
+    tol_complementarity); n_samples;
     safety_margin_m (m, >= 0): added to every robot's radius in the planner's collision
     terms only, so that rho_ij is planned with r_i + r_j + 2 margin while metrics still
     count a collision below r_i + r_j (covers sampling between collision samples and
@@ -339,6 +354,49 @@ class SweepConfig:
     engine: string(one_of(SWEEP_ENGINES)) = DEFAULT_SWEEP_ENGINE
 
 
+@dataclass(frozen=True)
+class WeightRange:
+    """One tuned weight's search range: low < high, sampled on a log scale (low > 0)
+    or a linear one."""
+
+    low: float
+    high: float
+    log: bool = False
+
+
+@dataclass(frozen=True)
+class TuneConfig:
+    """[tune] (read by `jaxplan tune`, jaxplan/tune.py), resolved.
+
+    weights: {name: WeightRange} of [planner] weights in TUNABLE_WEIGHTS, in the order
+    given.  scenarios: registry names or paths of TOML configs whose fleet is used
+    (relative to the config file); empty = the config's own fleet.  seeds: the training
+    seeds; holdout_seeds: the held-out ones (may be empty).  objective (to minimize,
+    over the training runs, a run that did not succeed counting as sim.duration_s) in
+    TUNE_OBJECTIVES; min_success_rate, min_separation_ratio: the constraints (a penalty,
+    jaxplan/tune.py).  trials: trials in all; batch: trials per batch; sampler in
+    TUNE_SAMPLERS; enqueue_defaults: the [planner] weights are the first trial.
+    """
+
+    weights: dict[str, WeightRange]
+    scenarios: tuple[str, ...]
+    seeds: tuple[int, ...]
+    holdout_seeds: tuple[int, ...]
+    objective: str = DEFAULT_TUNE_OBJECTIVE
+    min_success_rate: float = DEFAULT_TUNE_MIN_SUCCESS_RATE
+    min_separation_ratio: float = DEFAULT_TUNE_MIN_SEPARATION_RATIO
+    trials: int = DEFAULT_TUNE_TRIALS
+    batch: int = DEFAULT_TUNE_BATCH
+    sampler: str = DEFAULT_TUNE_SAMPLER
+    enqueue_defaults: bool = True
+
+    def __hash__(self) -> int:  # weights is a dict
+        return hash((tuple(self.weights.items()), self.scenarios, self.seeds,
+                     self.holdout_seeds, self.objective, self.min_success_rate,
+                     self.min_separation_ratio, self.trials, self.batch, self.sampler,
+                     self.enqueue_defaults))
+
+
 def _plain_name(name: str) -> str:
     if not name.strip() or any(ch in name for ch in "/\\\n\r\t\0"):
         raise FieldProblem(f"must be a non-empty name without slashes or control "
@@ -367,6 +425,7 @@ class Config:
     faults: FaultsConfig
     workspace: WorkspaceConfig = WorkspaceConfig()
     obstacles: tuple[ObstacleConfig, ...] = ()
+    tune: TuneConfig | None = None  # None: no [tune] table
     source: str = dataclasses.field(default="<string>", compare=False)
 
     @property
@@ -378,7 +437,8 @@ class Config:
 
 
 TOP_KEYS = ("name", "description", "seed", "planner", "limits", "sim", "robots",
-             "scenario", "sweep", "faults", "workspace", "obstacles")
+             "scenario", "sweep", "faults", "workspace", "obstacles", "tune")
+TUNE_KEYS = tuple(f.name for f in dataclasses.fields(TuneConfig))
 ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
 FAULT_KEYS = tuple(FaultsConfig.__dataclass_fields__)
 # Each generator's keys, in the order they are written out (declared in

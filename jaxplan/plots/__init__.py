@@ -3,10 +3,12 @@
 
     plot_run(run_dir, *, animation=True, mp4=False, max_frames=150) -> list[Path]
     plot_sweep(sweep_dir) -> list[Path]
+    plot_tune(fig_dir, trials, importance, *, objective) -> list[Path]
 
 Modules: :mod:`~jaxplan.plots.run` (the static run figures),
 :mod:`~jaxplan.plots.animation`, :mod:`~jaxplan.plots.sweep` (the heatmaps),
 :mod:`~jaxplan.plots.scene` (the world: obstacles, faces, clearances),
+:mod:`~jaxplan.plots.tune` (a tune directory's objective, importance, Pareto front),
 :mod:`~jaxplan.plots.style` (sizes, style, colours, saving).  The data come from
 :func:`jaxplan.results.load_run` (a run directory, validated) and
 :mod:`jaxplan.sweep_csv` (sweep.csv, its grid and best setting); the animation's frames
@@ -53,5 +55,6 @@ from __future__ import annotations
 from jaxplan.plots.run import plot_run
 from jaxplan.plots.style import robot_colors
 from jaxplan.plots.sweep import plot_sweep
+from jaxplan.plots.tune import plot_tune
 
-__all__ = ["plot_run", "plot_sweep", "robot_colors"]
+__all__ = ["plot_run", "plot_sweep", "plot_tune", "robot_colors"]

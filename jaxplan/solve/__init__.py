@@ -27,6 +27,7 @@ from jaxplan.solve.pool import (
 from jaxplan.solve.types import (
                                 CONVERGED,
                                 INFEASIBLE,
+                                LINE_SEARCH_FAILED,
                                 MAX_ITERS,
                                 NON_FINITE,
                                 STATUS_NAMES,
@@ -36,7 +37,8 @@ from jaxplan.solve.types import (
 )
 
 __all__ = [
-    "CONVERGED", "FEW_OTHERS", "INFEASIBLE", "LOCKSTEP_MAX", "MAX_ITERS", "NON_FINITE",
+    "CONVERGED", "FEW_OTHERS", "INFEASIBLE", "LINE_SEARCH_FAILED", "LOCKSTEP_MAX", "MAX_ITERS",
+    "NON_FINITE",
     "POOL_CPU", "POOL_CPU_FEW", "STATUS_NAMES", "Solution", "SolverSettings",
     "as_strong_dtypes", "default_pool", "default_shards", "direction", "directions",
     "eigh_chunk", "initial_guess", "initial_guess_batch", "shard_lanes", "solve",

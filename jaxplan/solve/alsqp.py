@@ -46,8 +46,15 @@ Status codes (``Solution.status``, int32):
     0 CONVERGED      all three tests passed.
     1 MAX_ITERS      iteration budget spent, constraints satisfied to tolerance.
     2 NON_FINITE     a non-finite value appeared; x = x0 (finite), traj finite.
-    3 INFEASIBLE     budget spent with violation > tol_feasibility (e.g. a start
-                     inside another robot's radius, or a goal occupied).
+    3 INFEASIBLE     violation > tol_feasibility when the budget was spent, or
+                     detected early: ``infeasible_updates`` multiplier updates in a row,
+                     at a penalty >= ``infeasible_penalty``, each left the violation above
+                     ``infeasible_shrink`` x the previous update's (e.g. a start inside
+                     another robot's radius, or a goal occupied).
+    4 LINE_SEARCH_FAILED  ``max_backtracks`` trials found no Armijo step and the
+                     multiplier update left L_A unchanged, so the next iteration would
+                     repeat the same search: the lane stops at its iterate (its last
+                     accepted point; constraints as ``ineq_violation`` says).
 """
 
 
@@ -67,6 +74,7 @@ from jaxplan.solve.linalg import directions
 from jaxplan.solve.types import (
     CONVERGED,
     INFEASIBLE,
+    LINE_SEARCH_FAILED,
     MAX_ITERS,
     NON_FINITE,
     Solution,
@@ -105,6 +113,9 @@ class State(NamedTuple):
     trials: jax.Array  # int32: trials before y in this line search
     obj0: jax.Array  # the objective at x0 (from the first evaluation; reported where the
     viol0: jax.Array  # lane ends NON_FINITE) and the constraint violation there
+    stalls: jax.Array  # int32: multiplier updates in a row that hardly shrank the violation
+    why: jax.Array  # int32: 0, or the status a lane stopped early with (LINE_SEARCH_FAILED,
+    # INFEASIBLE)
 
 
 def next_trial(a, g_x: Multipliers, g_a: Multipliers, thr: Multipliers, overshoot):
@@ -163,7 +174,8 @@ def init_lane(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
                  base=jnp.asarray(True), y=x0, d=jnp.zeros_like(x0), grad=jnp.zeros_like(x0),
                  alpha=F(0.0), trials=jnp.asarray(-1, jnp.int32),
                  obj0=_objective_from_merit(f0, g0, mult0, mu0, params, structure),
-                 viol0=max_violation(g0))
+                 viol0=max_violation(g0), stalls=jnp.asarray(0, jnp.int32),
+                 why=jnp.asarray(0, jnp.int32))
     lane = Lane(params, tau_min, nlp.prepare_others(params.others, params.other_mask))
     return lane, st0, finite_in, x0
 
@@ -206,6 +218,8 @@ class _Evaluation(NamedTuple):
     a_next: jax.Array
     obj0: jax.Array
     viol0: jax.Array
+    stalls: jax.Array
+    why: jax.Array  # 0, or the status the lane stops with here
 
 
 def is_active(st: State, s: SolverSettings):
@@ -248,6 +262,21 @@ def _evaluate(st: State, lane: Lane, structure: NLPStructure, s: SolverSettings)
     changed = grow | jnp.any(jnp.stack([jnp.any(m != l) for m, l in
                                         zip(jax.tree.leaves(mult), jax.tree.leaves(st.mult),
                                             strict=True)]))
+    # early stops: a failed line search whose L_A is unchanged would be repeated from
+    # the same x along the same direction (so the lane stops: LINE_SEARCH_FAILED); a lane
+    # whose violation hardly shrinks over several updates in a row, however the penalty
+    # and multipliers grow, cannot become feasible from here (INFEASIBLE)
+    # (only at a large penalty: lanes of a 100-robot crossing that converge hardly
+    # shrink their violation over several updates at penalties of 1e3-1e4)
+    hardly = (viol > s.tol_feasibility) & (viol > s.infeasible_shrink * st.viol_ref) & (
+        st.mu >= s.infeasible_penalty)
+    stalls = jnp.where(upd, jnp.where(hardly, st.stalls + 1, 0), st.stalls).astype(jnp.int32)
+    infeasible = upd & (stalls >= s.infeasible_updates)
+    why = jnp.where(failed & ~changed, LINE_SEARCH_FAILED, jnp.where(infeasible, INFEASIBLE, 0)
+                    ).astype(jnp.int32)
+    # a lane that stops here keeps the multipliers and penalty its L_A value at x has
+    mult = tree_where(infeasible, st.mult, mult)
+    mu = jnp.where(infeasible, st.mu, mu)
     # 3. an iteration starts at x from this evaluation: at the base, or at an accepted
     # trial whose L_A is unchanged; after a failed search or changed multipliers the
     # next evaluation is at x
@@ -264,7 +293,8 @@ def _evaluate(st: State, lane: Lane, structure: NLPStructure, s: SolverSettings)
     viol0 = jnp.where(first, max_violation(gy), st.viol0)
     return _Evaluation(more=more, x=x, g=g, f_x=f_x, fy=fy, pending=pending, mult=mult, mu=mu,
                        viol_ref=viol_ref, start=start, finite=finite, grad_proj=grad_proj,
-                       hess_proj=hess_proj, a_next=a_next, obj0=obj0, viol0=viol0)
+                       hess_proj=hess_proj, a_next=a_next, obj0=obj0, viol0=viol0,
+                       stalls=stalls, why=why)
 
 
 def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> State:
@@ -287,7 +317,8 @@ def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> St
     cap = jnp.minimum(
         cap, s.max_step_z / jnp.maximum(jnp.max(jnp.abs(d[:-1]), initial=0.0), 1e-300))
     d = d * cap
-    stop = start & (conv | ~finite)  # converged at x (or non-finite): no step
+    early = ev.why != 0  # a failed search that would repeat, or infeasible: no step
+    stop = start & (conv | ~finite) | early  # converged at x (or non-finite): no step
     search = start & ~stop
     point = lambda xb, dd, a: (xb + a * dd).at[-1].max(tau_min)
     # 4. the next evaluation: the first trial of a new search, the next trial, or x
@@ -301,7 +332,7 @@ def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> St
         theta=jnp.where(start, theta, st.theta), base=~(search | more), y=y_new, d=d_new,
         grad=jnp.where(search, grad_proj, st.grad), alpha=a_new,
         trials=jnp.where(search, 0, jnp.where(more, st.trials + 1, -1)).astype(jnp.int32),
-        obj0=ev.obj0, viol0=ev.viol0)
+        obj0=ev.obj0, viol0=ev.viol0, stalls=ev.stalls, why=ev.why)
     return tree_where(is_active(st, s), new, st)  # an inactive lane is returned as is
 
 
@@ -331,9 +362,9 @@ def finish_lane(st: State, lane: Lane, finite_in, x0, structure: NLPStructure,
     x = jnp.where(bad, x0, st.x)
     # st.g and st.f are the constraints and L_A at st.x: no second pass over the others
     viol = jnp.where(bad, st.viol0, max_violation(st.g))
-    conv = st.done & ~bad
-    status = jnp.where(bad, NON_FINITE, jnp.where(conv, CONVERGED,
-                       jnp.where(viol > s.tol_feasibility, INFEASIBLE, MAX_ITERS))
+    conv = st.done & ~bad & (st.why == 0)
+    status = jnp.where(bad, NON_FINITE, jnp.where(conv, CONVERGED, jnp.where(
+        st.why != 0, st.why, jnp.where(viol > s.tol_feasibility, INFEASIBLE, MAX_ITERS)))
                        ).astype(jnp.int32)
     traj = nlp.to_trajectory(x, params, structure)
     traj_ok = jnp.all(jnp.isfinite(traj.coeffs)) & jnp.all(jnp.isfinite(traj.breaks))

@@ -22,8 +22,10 @@ from jaxplan.solve.types import Solution, SolverSettings
 def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool, shards=1,
                      x_fallback=None):
     lead = jnp.shape(params.radius)  # radius: () per problem
+    # the batch size spelt out, not -1: a leaf may have no elements (the static rows'
+    # multipliers of an NLP without static rows, (..., n_col, 0))
     flat = lambda t: None if t is None else jax.tree.map(
-        lambda a: a.reshape((-1,) + a.shape[len(lead):]), t)
+        lambda a: a.reshape((math.prod(lead),) + a.shape[len(lead):]), t)
     if x_fallback is None:
         x_fallback = x0
 

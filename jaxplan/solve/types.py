@@ -15,15 +15,15 @@ from jaxplan import nlp
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
 from jaxplan.trajectory import Trajectory
 
-CONVERGED, MAX_ITERS, NON_FINITE, INFEASIBLE = 0, 1, 2, 3
+CONVERGED, MAX_ITERS, NON_FINITE, INFEASIBLE, LINE_SEARCH_FAILED = 0, 1, 2, 3, 4
 STATUS_NAMES = {CONVERGED: "converged", MAX_ITERS: "max-iterations", NON_FINITE: "non-finite",
-                INFEASIBLE: "infeasible"}
+                INFEASIBLE: "infeasible", LINE_SEARCH_FAILED: "line-search-failed"}
 
 
 class SolverSettings(NamedTuple):
     """Solver settings; all traced (changing them does not recompile)."""
 
-    max_iters: int = 60
+    max_iters: int = 50  # the planner's default too ([planner] max_iters)
     tol_stationarity: float = 1e-10  # Newton decrement^2 / (1 + |L_A|)
     tol_feasibility: float = 1e-8  # constraint units (m^2 for collisions)
     tol_complementarity: float = 1e-8  # lam |g| / (1 + |L_A|)
@@ -38,6 +38,12 @@ class SolverSettings(NamedTuple):
     max_backtracks: int = 30
     kink_overshoot: float = 1.1  # backtracking past an AL branch crossing (step_lanes)
     reg: float = 1e-13  # eigenvalue floor / max|eigenvalue| (direction)
+    # early infeasibility: a lane stops INFEASIBLE after this many multiplier updates in
+    # a row, at a penalty of at least infeasible_penalty, that each left the violation
+    # above infeasible_shrink x the previous one's
+    infeasible_updates: int = 3
+    infeasible_shrink: float = 0.9
+    infeasible_penalty: float = 1e6
 
 
 class Solution(NamedTuple):
