@@ -277,6 +277,13 @@ def _sweep_study(a) -> tuple[str, dict]:
     return "\n".join(lines), results
 
 
+def _complete(out: Path, runs: int) -> bool:
+    """The sweep directory ``out`` holds ``runs`` finished rows."""
+    from jaxplan.sweep_csv import read_sweep_csv
+
+    return (out / "sweep.csv").exists() and len(read_sweep_csv(out / "sweep.csv")[0]) >= runs
+
+
 def _deadlock_study(a) -> tuple[str, dict]:
     cells = DEADLOCK_CELLS
     if a.only:
@@ -294,6 +301,11 @@ def _deadlock_study(a) -> tuple[str, dict]:
             if res == "off" and a.off_seeds:
                 n = min(n, a.off_seeds)
             out = a.out / "deadlock" / f"{_slug(name)}__{res}__{n}seeds"
+            if a.collect and not _complete(out, n):
+                full = a.out / "deadlock" / f"{_slug(name)}__{res}__{seeds}seeds"
+                if not _complete(full, seeds):
+                    continue
+                out, n = full, seeds
             print(f"[{time.perf_counter() - t0:7.0f} s] {name} / {res} -> {out}", flush=True)
             results[f"{name} | {res}"] = _cell(base, n, out, a.batch, scenario=scenario,
                                                planner={"deadlock": res}, faults=faults)

@@ -25,6 +25,12 @@ stalled ring turns into a roundabout; the sub-goal is what the robot broadcasts 
 goal while it sidesteps (:func:`published_goals`), so the others predict where it is
 going.  Then it flies to its goal again, and its progress clock starts afresh.
 
+Broadcast (:func:`broadcast`): with the sidestep enabled, each robot broadcasts the end of
+the plan it flies, not only its goal: its sub-goal, the free point beside an occupied
+goal, or, when it flies its braking plan, that plan's stopping point at rest (and, when it
+keeps its previous plan, what it broadcast for that plan).  The others' closed-form
+predictions then brake with it instead of flying on to its goal.
+
 Everything here is pure and jit-able; parameters are traced (:class:`DeadlockParams`:
 a change does not recompile; ``enabled`` switches the sidestep off, detection stays).
 """
@@ -36,7 +42,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-RESOLUTIONS = ("sidestep", "off")
+RESOLUTIONS = ("auto", "sidestep", "off")
+
+
+def resolution_enabled(resolution: str, dim: int) -> bool:
+    """Whether a fleet in ``dim`` dimensions sidesteps under ``[planner] deadlock``:
+    "sidestep" always, "off" never, "auto" (the default) for planar fleets, which cannot
+    leave a stall through a third dimension."""
+    if resolution not in RESOLUTIONS:
+        raise ValueError(f"deadlock resolution {resolution!r}: choose from {RESOLUTIONS}")
+    return resolution == "sidestep" or (resolution == "auto" and dim == 2)
 
 
 class DeadlockParams(NamedTuple):
@@ -72,6 +87,8 @@ class DeadlockState(NamedTuple):
     since the clock restarted.  since: (M,) s since ``best`` last fell by ``progress``.
     left: (M,) s of sidestep left (> 0: sidestepping).  sub: (M, N) the sub-goal of the
     last replan.  occupied: (M,) bool, the last replan planned beside an occupied goal.
+    pub_p, pub_v: (M, N), pub_rest: (M,) bool: what the robot broadcasts as its goal at
+    the next replan (:func:`broadcast`) where pub_ok (M,) bool.
     """
 
     goal: jax.Array
@@ -80,6 +97,10 @@ class DeadlockState(NamedTuple):
     left: jax.Array
     sub: jax.Array
     occupied: jax.Array
+    pub_p: jax.Array
+    pub_v: jax.Array
+    pub_rest: jax.Array
+    pub_ok: jax.Array
 
 
 def initial_state(p, goal=None) -> DeadlockState:
@@ -88,7 +109,8 @@ def initial_state(p, goal=None) -> DeadlockState:
     M = p.shape[0]
     g = jnp.full_like(p, jnp.nan) if goal is None else goal
     return DeadlockState(g, jnp.full((M,), jnp.inf), jnp.zeros((M,)), jnp.zeros((M,)),
-                         jnp.asarray(p), jnp.zeros((M,), bool))
+                         jnp.asarray(p), jnp.zeros((M,), bool), jnp.asarray(p),
+                         jnp.zeros_like(p), jnp.zeros((M,), bool), jnp.zeros((M,), bool))
 
 
 def right_of(u):
@@ -141,7 +163,7 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near):
     fin = lambda x, old: jnp.where(jnp.isfinite(x), x, jnp.where(jnp.isfinite(old), old, 0.0))
     sub = fin(sub, ds.sub)
     goal_kept = fin(goal_p, ds.goal)
-    new = DeadlockState(goal_kept, best, since, left, sub, ds.occupied)
+    new = ds._replace(goal=goal_kept, best=best, since=since, left=left, sub=sub)
     return new, stalled, side, started
 
 
@@ -164,12 +186,40 @@ def planning_goals(ds: DeadlockState, goal_p, goal_v, rest):
             jnp.where(side[:, None], 0.0, goal_v), side | rest)
 
 
+def broadcast(ds: DeadlockState, prm: DeadlockParams, planned_p, planned_v, planned_rest,
+              stop_p, braking, kept) -> DeadlockState:
+    """Record after a replan what each robot will broadcast as its goal at the next one:
+    the end of the plan it flies.  Where the sidestep is enabled: the goal it planned to
+    (planned_p, planned_v, planned_rest (M, N), (M, N), (M,): its goal, its sidestep
+    sub-goal or the free point beside an occupied goal); where it flies its braking plan
+    (``braking`` (M,) bool), that plan's stopping point ``stop_p`` (M, N) at rest; where
+    it keeps its previous plan (``kept``), what it broadcast for that plan.  Without the
+    sidestep: its goal (the planner as the paper has it).  A robot that brakes while the
+    others are told it flies on is struck (planar circle of 24, seed 2: a robot braked
+    for three replans while broadcasting its goal; d / rho 0.94)."""
+    sel = lambda c, a, b: jnp.where(c.reshape(c.shape + (1,) * (a.ndim - c.ndim)), a, b)  # noqa: E731
+    p = sel(braking, stop_p, planned_p)
+    v = sel(braking, jnp.zeros_like(planned_v), planned_v)
+    rest = braking | planned_rest
+    old = kept & ds.pub_ok
+    p, v, rest = sel(old, ds.pub_p, p), sel(old, ds.pub_v, v), sel(old, ds.pub_rest, rest)
+    on = prm.enabled & jnp.all(jnp.isfinite(p), axis=-1) & jnp.all(jnp.isfinite(v), axis=-1)
+    # nothing non-finite is carried: where there is nothing to broadcast, the old entries
+    return ds._replace(pub_p=sel(on, p, ds.pub_p), pub_v=sel(on, v, ds.pub_v),
+                       pub_rest=on & rest, pub_ok=on)
+
+
 def published_goals(ds: DeadlockState | None, goal_p, goal_v, rest):
     """What each robot broadcasts as its goal before a replan (``ds``: the state after
-    the previous replan; None: no deadlock handling): its sub-goal while it sidesteps."""
+    the previous replan; None: no deadlock handling): what :func:`broadcast` recorded
+    while its goal is the one it was recorded for, else its goal (its sub-goal while it
+    sidesteps)."""
     if ds is None:
         return goal_p, goal_v, rest
-    return planning_goals(ds, goal_p, goal_v, rest)
+    use = jnp.all(ds.goal == goal_p, axis=-1) & ds.pub_ok
+    goal_p, goal_v, rest = planning_goals(ds, goal_p, goal_v, rest)
+    sel = lambda a, b: jnp.where(use.reshape(use.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+    return sel(ds.pub_p, goal_p), sel(ds.pub_v, goal_v), sel(ds.pub_rest, rest)
 
 
 # ------------------------------------------------------------------ on the host (metrics)

@@ -24,7 +24,7 @@ from jaxplan import solve
 from jaxplan import world_metrics as wm
 from jaxplan.config import Config, build_scenario
 from jaxplan.deadlock import default_params as deadlock_params
-from jaxplan.deadlock import stall_summary
+from jaxplan.deadlock import resolution_enabled, stall_summary
 from jaxplan.faults import FaultParams, no_faults
 from jaxplan.nlp import Limits, NLPStructure, Weights
 from jaxplan.planner import (
@@ -116,7 +116,7 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
         accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
         static=_static(scenario, n_static),
         deadlock=deadlock_params(
-            enabled=pc.deadlock == "sidestep", window=pc.stall_window_s,
+            enabled=resolution_enabled(pc.deadlock, scenario.dim), window=pc.stall_window_s,
             progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
             step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg),
     )

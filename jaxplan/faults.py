@@ -9,8 +9,9 @@ The paper assumes reliable communication.  Here each observer's view of each sen
   (``latency_s`` rounded to whole periods);
 * noisy: each received position gets Gaussian noise of ``noise_sigma_m`` per axis,
   drawn independently per observer (robots know their own state exactly);
-* from a robot that stops responding: robot ``frozen_robot`` freezes where it is at
-  ``frozen_at_s`` (it stops planning and hovers) and either stops sending
+* from a robot that stops responding: robot ``frozen_robot`` freezes at
+  ``frozen_at_s`` (it stops planning, brakes to rest within its a_max and hovers there:
+  :func:`jaxplan.rollout.freeze`) and either stops sending
   (``frozen_mode = "silent"``) or keeps sending its last message with a fresh time stamp
   (``"stale"``: the others are told it is still flying its old plan).
 

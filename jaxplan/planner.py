@@ -10,12 +10,15 @@ advanced by the age of the message it came from.  An old message costs a larger 
 (at most MAX_INFLATION): a view up to STALE_AFTER_S old is a prediction advanced from
 the sent state, which can be off by what the sender's acceleration could change since,
 a_max age^2 / 2; an older view is a robot holding still, which can be off by how far it
-could have flown since, v_max age.  It is held at the middle of the stretch between its
-last message and where that message predicted it one period later (it fell silent
-somewhere there), and it is never taken to be known better than that stretch allows:
-half its chord plus a_max dt^2 / 8 (``floor``; without it, a robot that froze at
-1.46 m/s stood 0.195 m from its last message, and a robot planning beside it at the
-planning distance collided, d / rho 0.963).  Each robot then builds its NLP (:mod:`jaxplan.nlp`)
+could have flown since, v_max age.  It is held at the middle of the stretch from its
+last message to where that message predicted it one period later and on to where it
+comes to rest braking from there (it fell silent somewhere on the way, and a robot that
+stops responding brakes to rest: :func:`jaxplan.rollout.freeze`), and it is never taken to be
+known better than that stretch allows: half its length plus a_max dt^2 / 8 (``floor``;
+without it, a robot that froze at 1.46 m/s stood 0.195 m from its last message, and a
+robot planning beside it at the planning distance collided, d / rho 0.963; without the
+braking stretch, a robot beside one that braked from 1.5 m/s, random_box_20 with robot 0
+frozen, seed 19: d / rho 0.80).  Each robot then builds its NLP (:mod:`jaxplan.nlp`)
 and solves it; all robots' NLPs are solved in one call (:mod:`jaxplan.solve`, a pool of lanes).
 Warm start: the robot's previous plan shifted by the replan period; the first plan starts from
 its own prediction.
@@ -284,6 +287,10 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     plan, fallback, new_mult, new_pen = choose_plans(fp, ps, params, sol, p, v, a, structure)
     if ds is not None:
         ds = ds._replace(occupied=goal_moved & ~side)
+        # the next broadcast: the end of the plan flown (a braking plan's stopping point)
+        ds = dl.broadcast(ds, fp.deadlock, params.goal_p, params.goal_v, params.rest,
+                          plan.evaluate(plan.duration), fallback == BRAKING,
+                          fallback == KEPT_PREVIOUS)
     new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32),
                        (fallback != ACCEPTED) & fp.robot_mask, ds)
     info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
@@ -327,14 +334,19 @@ def view_predictions(fp: FleetParams, views: Views):
     fresh = age <= STALE_AFTER_S
     preds0 = predict_views(views, fp.prediction_weight)
     preds = preds0.shift(jnp.where(fresh, age, 0.0))
-    # a silent robot stopped somewhere between its last message and the next one due
-    # (one period later, along its prediction): held at the middle of that stretch,
-    # which it is within floor of (half the chord, plus a_max dt^2 / 8 for the bend)
-    nxt = preds0.evaluate(fp.dt)
-    held_p = 0.5 * (views.p + nxt)
+    # a silent robot stopped somewhere between its last message and where it comes to
+    # rest braking (as braking_plan does) from the next one due, one period later along
+    # its prediction: held at the middle of that stretch's chord, which it is within
+    # floor of (half the stretch's length, plus a_max dt^2 / 8 for the bend)
+    nxt, v_nxt = preds0.evaluate(fp.dt), preds0.evaluate(fp.dt, 1)
+    a_max = jnp.maximum(fp.limits.a_max[None, :], 1e-3)
+    t_stop = jnp.maximum(1.5 * jnp.linalg.norm(v_nxt, axis=-1) / a_max, 0.5)
+    stop = nxt + 0.5 * v_nxt * t_stop[..., None]
+    held_p = 0.5 * (views.p + stop)
     held = Trajectory.hold(held_p, preds.degree, preds.num_segments)
     preds = tree_where(fresh, preds, held)
-    floor = jnp.where(fresh, 0.0, 0.5 * jnp.linalg.norm(nxt - views.p, axis=-1)
+    floor = jnp.where(fresh, 0.0, 0.5 * (jnp.linalg.norm(nxt - views.p, axis=-1)
+                                         + jnp.linalg.norm(stop - nxt, axis=-1))
                       + fp.limits.a_max[None, :] * fp.dt**2 / 8)
     floor = jnp.where(jnp.isfinite(floor), floor, 0.0)
     # old information: inflate the other's radius by how far it could be from where the

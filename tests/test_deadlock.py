@@ -254,3 +254,48 @@ def test_ground_robots_and_the_antipodal_circle():
     with pytest.raises(ConfigError, match="planner.deadlock"):
         parse_config({"planner": {"deadlock": "yield"}, "scenario": {
             "kind": "antipodal_circle", "count": 2, "vehicles": ["ground"]}})
+
+
+def test_auto_sidesteps_in_planar_fleets_only():
+    from jaxplan.config import build_scenario, parse_config
+    from jaxplan.experiment import fleet_params
+
+    assert dl.resolution_enabled("auto", 2) and not dl.resolution_enabled("auto", 3)
+    assert dl.resolution_enabled("sidestep", 3) and not dl.resolution_enabled("off", 2)
+    with pytest.raises(ValueError, match="yield"):
+        dl.resolution_enabled("yield", 2)
+    for planner, dim, on in (({}, 2, True), ({}, 3, False), ({"deadlock": "off"}, 2, False),
+                             ({"deadlock": "sidestep"}, 3, True)):
+        sc = {"kind": "antipodal_circle", "count": 2, "dim": dim}
+        if dim == 2:
+            sc["vehicles"] = ["ground"]
+        cfg = parse_config({"planner": planner, "scenario": sc})
+        assert cfg.planner.deadlock == planner.get("deadlock", "auto")
+        assert bool(fleet_params(cfg, build_scenario(cfg)).deadlock.enabled) is on
+
+
+def test_a_robot_broadcasts_the_end_of_the_plan_it_flies():
+    # robot 0 flies its plan to its goal, 1 brakes (stopping point [1, 1]), 2 keeps its
+    # previous plan, 3 plans to its sidestep sub-goal [3, 3] at rest
+    goal = jnp.array([[5.0, 0.0], [6.0, 0.0], [7.0, 0.0], [8.0, 0.0]])
+    gv = jnp.ones((4, 2))
+    ds = dl.initial_state(jnp.zeros((4, 2)), goal)
+    planned = goal.at[3].set([3.0, 3.0])
+    prest = jnp.array([False, False, False, True])
+    stop = jnp.full((4, 2), 1.0)
+    braking = jnp.array([False, True, False, False])
+    kept = jnp.array([False, False, True, False])
+    on, off = dl.default_params(enabled=True), dl.default_params(enabled=False)
+    ds1 = dl.broadcast(ds, on, planned, gv, prest, stop, braking, kept)
+    p, v, rest = dl.published_goals(ds1, goal, gv, prest.at[3].set(False))
+    np.testing.assert_array_equal(p, [[5, 0], [1, 1], [7, 0], [3, 3]])
+    np.testing.assert_array_equal(v, [[1, 1], [0, 0], [1, 1], [1, 1]])
+    assert list(np.asarray(rest)) == [False, True, False, True]
+    # the next replan keeps robot 1's braking plan: it still broadcasts its stop
+    ds2 = dl.broadcast(ds1, on, planned, gv, prest, stop + 9.0, ~braking, braking)
+    np.testing.assert_array_equal(dl.published_goals(ds2, goal, gv, prest)[0][1], [1, 1])
+    # a new goal (a new waypoint) is broadcast as it is; without the sidestep, the goals
+    new = goal.at[1].set([0.0, 6.0])
+    np.testing.assert_array_equal(dl.published_goals(ds1, new, gv, prest)[0][1], [0, 6])
+    ds_off = dl.broadcast(ds, off, planned, gv, prest, stop, braking, kept)
+    np.testing.assert_array_equal(dl.published_goals(ds_off, goal, gv, prest)[0], goal)

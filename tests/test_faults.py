@@ -80,7 +80,7 @@ def test_run_with_faults_is_reproducible_and_finite(tmp_path):
     from tests.conftest import TINY_TOML
 
     text = TINY_TOML.replace("[sim]", "[faults]\nenabled = true\nmessage_loss = 0.3\n"
-                             "noise_sigma_m = 0.02\nfrozen_robot = 2\nfrozen_at_s = 0.5\n[sim]")
+                             "noise_sigma_m = 0.02\nfrozen_robot = 2\nfrozen_at_s = 1.0\n[sim]")
     text = text.replace("duration_s = 12.0", "duration_s = 2.0")
     import tomllib
 
@@ -90,11 +90,19 @@ def test_run_with_faults_is_reproducible_and_finite(tmp_path):
     assert np.all(np.isfinite(r1.arrays["pos"]))
     f = r1.metrics["faults"]
     assert f["messages_lost"] > 0 and f["frozen_robot"] == 2
-    # the frozen robot hovers where it froze
+    # the frozen robot brakes to rest within its a_max (no dead stop: its speed is
+    # continuous at the freeze), then hovers where it stopped
     t = r1.arrays["t"]
-    pos = r1.arrays["pos"][2]
-    after = t >= 0.5 + 0.125
-    assert np.ptp(pos[after], axis=0).max() < 1e-9
+    pos, vel, acc = (r1.arrays[k][2] for k in ("pos", "vel", "acc"))
+    speed = np.linalg.norm(vel, axis=-1)
+    k0 = int(np.searchsorted(t, 1.0))
+    assert speed[k0 - 1] > 0.1, speed[k0 - 1]  # it was moving
+    assert abs(speed[k0] - speed[k0 - 1]) < 0.05 * speed[k0 - 1] + 1e-3
+    assert speed[k0:].max() <= 1.05 * speed[k0 - 1]  # braking (its acceleration fades)
+    a_max = r1.metrics["per_robot"][2]["a_max"]
+    assert np.linalg.norm(acc[k0:], axis=-1).max() <= 1.1 * a_max
+    rest = t >= 1.0 + max(1.5 * speed[k0] / a_max, 0.5)
+    assert np.ptp(pos[rest], axis=0).max() < 1e-9 and speed[rest].max() < 1e-9
 
 
 @pytest.mark.parametrize("table, key", [

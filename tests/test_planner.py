@@ -214,3 +214,44 @@ def test_coast_rows_only_where_a_free_end_can_occur():
     assert ex.structures(cfg("free")).planner.nlp.n_coast_samples == 8
     assert ex.structures(cfg("rest")).planner.nlp.n_coast_samples == 0
     assert _structure(cfg("rest"), 3).planner.nlp.n_coast_samples == 8  # a sweep keeps them
+
+
+def test_a_silent_robot_is_held_where_it_can_have_braked_to():
+    """A view older than STALE_AFTER_S: the sender flew on one period along its prediction
+    and then braked to rest (the braking plan, as a frozen robot does); every point of
+    that path lies within ``floor`` of where the view holds it."""
+    from types import SimpleNamespace
+
+    from jaxplan.nlp import Limits
+    from jaxplan.planner import (
+        STALE_AFTER_S,
+        PlannerStructure,
+        braking_plan,
+        fresh_views,
+        view_predictions,
+    )
+    from jaxplan.predict import predict_arrays
+
+    p = jnp.array([[0.0, 0.0, 1.0], [3.0, 0.0, 1.0]])
+    v = jnp.array([[1.5, 0.4, 0.0], [0.0, 0.0, 0.0]])
+    a = jnp.array([[0.5, -1.0, 0.0], [0.0, 0.0, 0.0]])
+    goal = jnp.array([[9.0, 3.0, 1.0], [3.0, 0.0, 1.0]])
+    views = fresh_views(p, v, a, goal, jnp.zeros_like(p), jnp.zeros(2, bool))
+    views = views._replace(age=jnp.full((2, 2), STALE_AFTER_S + 0.5))
+    lim = Limits(jnp.full(2, 2.0), jnp.full(2, 4.0), jnp.full(2, 12.0))
+    fp = SimpleNamespace(dt=jnp.asarray(0.125), prediction_weight=jnp.asarray(6.0), limits=lim)
+    preds, inflate, floor = view_predictions(fp, views)
+    held = np.asarray(preds.evaluate(0.0))[1, 0]  # robot 1's view of robot 0
+    # reference: robot 0's own path, its prediction for one period, then its braking plan
+    pr = predict_arrays(p[:1], v[:1], a[:1], goal[:1], jnp.zeros((1, 3)), jnp.zeros((1, 3)),
+                        jnp.zeros(1, bool), 6.0)
+    t1 = np.linspace(0.0, 0.125, 50)
+    path = [np.asarray(pr.evaluate(jnp.asarray(t1)[:, None]))[:, 0]]
+    s1 = [x[0][None] for x in pr.state_at(jnp.asarray([0.125]))]
+    brake = braking_plan(*s1, lim.a_max[:1], PlannerStructure())
+    t2 = np.linspace(0.0, 3.0, 300)
+    path.append(np.asarray(brake.evaluate(jnp.asarray(t2)[:, None]))[:, 0])
+    d = np.linalg.norm(np.concatenate(path) - held, axis=-1)
+    assert d.max() > 0.2  # it moved a fair way
+    assert d.max() <= float(floor[1, 0]) + 1e-9
+    assert float(inflate[1, 0]) >= float(floor[1, 0])

@@ -57,9 +57,10 @@ DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solve.default_p
 DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
 MAX_COAST_SAMPLES = 256
 # stalls and their resolution (jaxplan/deadlock.py)
-DEFAULT_DEADLOCK = "off"                 # "sidestep" | "off" (detection runs either way);
-# off by default: on the tiny 3-D swap the sidestep made the makespan 20% longer and the
-# peak speed 1.057 v_max (5.34 s and 1.036 without); see README, "Known limits"
+DEFAULT_DEADLOCK = "auto"                # "auto" | "sidestep" | "off" (detection runs either way);
+# auto: the sidestep for planar fleets (without it they do not arrive: docs/RESULTS.md),
+# off in 3-D (on the tiny 3-D swap the sidestep made the makespan 20% longer and the peak
+# speed 1.057 v_max: 5.34 s and 1.036 without); see README, "Known limits"
 DEFAULT_STALL_WINDOW_S = 2.0             # s without progress before a robot is stalled
 DEFAULT_STALL_PROGRESS_M = 0.2           # m: less progress than this over the window
 DEFAULT_STALL_NEAR_M = 1.0               # m of clearance to another robot that counts as near
@@ -135,7 +136,7 @@ class PlannerConfig:
     CPU (12 for more than 32 robots with at most 16 others per NLP), all M elsewhere.
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
-    deadlock "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,
+    deadlock "auto" | "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,
     sidestep_hold_s, sidestep_step_m, sidestep_angle_deg: stall detection (always on)
     and the sidestep that resolves a stall (jaxplan/deadlock.py).
     """
