@@ -117,16 +117,20 @@ coast_samples = {coast}
 vehicle = "firefly"
 start = [0.0, 0.0, 1.5]
 goal = [0.0, -3.0, 1.5]
+end_state = "free"
 [[robots]]
 vehicle = "firefly"
 start = [4.0, 0.0, 1.5]
 goal = [{gx}, 0.0, 1.5]
+end_state = "{end}"
 """
 
 
 @pytest.fixture(scope="module")
 def beside_frozen():
-    """Robot 1 flies to a goal gx m from robot 0, which never moves and never talks."""
+    """Robot 1 flies to a goal gx m from robot 0, which never moves and never talks.
+    Robot 0 has a free end in every case, so that the rest and free cases compile one
+    closed loop (the coast rows are there for both; tests/conftest.py on compile time)."""
     def go(gx, end="rest", coast=8):
         doc = tomllib.loads(FROZEN.format(gx=gx, end=end, coast=coast))
         return run(parse_config(doc, source="frozen.toml"))
