@@ -724,7 +724,8 @@ def nearest_static_rows(static: StaticRows, p, radius, K: int):
     position p: (M, K) int32 indices, nearest first; masked or non-finite rows come last.
 
     A row is left out only when K others are nearer; it can matter before the next
-    replan only if the robot can reach it by then (docs/SOLVER.md, "Obstacles").
+    replan only if the robot can reach it by then (docs/SOLVER.md, "Which rows an NLP
+    holds").
 
     Args: static: StaticRows (R rows).  p: (M, N) m.  radius: (M,) m.  K: static,
     1 <= K <= R.
