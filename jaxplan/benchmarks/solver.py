@@ -209,6 +209,7 @@ def _planner_nlps(fp, structure, goals, rest):
     PlannerStructure ``structure``): its neighbour and static-row selection, the previous
     multipliers following their robot and their row."""
     M = goals.shape[0]
+    # (the plan state's plans are not used here: only its multipliers and slots)
     state = {"ps": _planner.initial_plan_state(jnp.asarray(goals), structure, M)}
     goals, rest = jnp.asarray(goals), jnp.asarray(rest)
 
