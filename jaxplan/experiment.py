@@ -69,24 +69,27 @@ def structures(config: Config, *, only_needed: bool = True,
     only_needed: leave out the coast constraints when no robot of the config's own
     scenario ever has a free end (they would be inactive rows; measured: 14% of the
     closed loop's time on antipodal_10).  A sweep, whose grid may hold other scenarios,
-    passes False.  n_static: the NLPs' static rows (obstacles and workspace faces);
-    default: those of the config's own world (a sweep passes the most of its grid).
+    passes False.  n_static: the world's static rows (obstacles and workspace faces);
+    default: those of the config's own world (a sweep passes the most of its grid); each
+    NLP holds ``max_static_rows`` of them (PlannerStructure.static_slots).
     """
     pc = config.planner
     sc = build_scenario(config)
     free = ~(np.asarray(sc.rest) | np.asarray(sc.has_goal_velocity))
     coast = pc.coast_samples if (np.any(free) or not only_needed) else 0
+    R = static_rows(sc.world).mask.shape[0] if n_static is None else n_static
+    # a world of at most max_static_rows rows: no selection (the same program as 0)
+    planner = PlannerStructure(max_neighbors=pc.max_neighbors, solver_pool=pc.solver_pool,
+                               max_static_rows=pc.max_static_rows
+                               if pc.max_static_rows < R else 0)
     nlp = NLPStructure(
         n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
         collision=pc.collision, n_collision_samples=_round_up_to_4(pc.n_samples),
-        n_coast_samples=coast,
-        n_static=static_rows(sc.world).mask.shape[0] if n_static is None else n_static,
+        n_coast_samples=coast, n_static=planner.static_slots(R),
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults
-    return RolloutStructure(planner=PlannerStructure(nlp=nlp,
-                                                     max_neighbors=pc.max_neighbors,
-                                                     solver_pool=pc.solver_pool),
+    return RolloutStructure(planner=dataclasses.replace(planner, nlp=nlp),
                             steps=steps, faults=fc.enabled,
                             latency_periods=round(fc.latency_s * pc.replan_hz) if fc.enabled
                             else 0)

@@ -18,8 +18,10 @@ known better than that stretch allows: half its length plus a_max dt^2 / 8 (``fl
 without it, a robot that froze at 1.46 m/s stood 0.195 m from its last message, and a
 robot planning beside it at the planning distance collided, d / rho 0.963; without the
 braking stretch, a robot beside one that braked from 1.5 m/s, random_box_20 with robot 0
-frozen, seed 19: d / rho 0.80).  Each robot then builds its NLP (:mod:`jaxplan.nlp`)
-and solves it; all robots' NLPs are solved in one call (:mod:`jaxplan.solve`, a pool of lanes).
+frozen, seed 19: d / rho 0.80).  Each robot then builds its NLP (:mod:`jaxplan.nlp`),
+with the others (or its ``max_neighbors`` nearest) and the world's static rows (or its
+``max_static_rows`` nearest: :func:`nlp_static_rows`), and solves it; all robots' NLPs
+are solved in one call (:mod:`jaxplan.solve`, a pool of lanes).
 Warm start: the robot's previous plan shifted by the replan period; the first plan starts from
 its own prediction.
 
@@ -95,11 +97,16 @@ class PlannerStructure:
     (:func:`nearest_neighbors`); the NLP's cost then grows with K, not with the fleet.
     solver_pool: robots' NLPs stepped at once (:func:`jaxplan.solve.solve_lanes`);
     0 = :func:`jaxplan.solve.default_pool` of the fleet size and of the others per NLP.
+    max_static_rows: 0 (every static row, obstacle or workspace face, is in each
+    robot's NLP) or K >= 1: each robot's NLP holds only the K rows nearest to where it
+    is (:func:`nearest_static_rows`); ``nlp.n_static`` is then
+    :meth:`static_slots` of the world's rows, and ``FleetParams.static`` holds them all.
     """
 
     nlp: NLPStructure = field(default_factory=NLPStructure)
     max_neighbors: int = 0
     solver_pool: int = 0
+    max_static_rows: int = 0
 
     def others(self, M: int) -> int:
         """Other-robot slots in each NLP of an M-robot fleet (M: the fleet, padded): K
@@ -107,6 +114,12 @@ class PlannerStructure:
         other robot, the robot itself left out (at least one slot, masked, for M = 1)."""
         K = self.max_neighbors
         return K if 0 < K < M - 1 else max(M - 1, 1)
+
+    def static_slots(self, R: int) -> int:
+        """Static-row slots in each NLP of a world of R rows (padding included): K
+        (``max_static_rows``) when that is fewer than R, else R (every row)."""
+        K = self.max_static_rows
+        return K if 0 < K < R else R
 
 
 class FleetParams(NamedTuple):
@@ -118,8 +131,11 @@ class FleetParams(NamedTuple):
     prediction_weight: () time weight w of the closed-form predictions.
     accept_violation: () largest inequality violation (m^2) accepted from a solve that
     hit its iteration cap.  settings: solve.SolverSettings.  static: the world's
-    obstacles and workspace faces (:class:`jaxplan.world.StaticRows`, R =
-    ``structure.nlp.n_static`` rows; None when R = 0), the same for every robot.
+    obstacles and workspace faces (:class:`jaxplan.world.StaticRows`, all R rows; None
+    when R = 0), the same for every robot: each robot's NLP holds
+    ``structure.nlp.n_static`` = ``structure.static_slots(R)`` of them (the nearest:
+    :func:`select_static`), the checks (:func:`plan_violation`, :func:`clear_of_static`)
+    use every row.
     deadlock: stall detection and sidestep settings
     (:class:`jaxplan.deadlock.DeadlockParams`); None: neither.
     """
@@ -161,7 +177,10 @@ class PlanState(NamedTuple):
     plan: Trajectory (M,), each starting at the time of the last replan.  has_plan: (M,).
     multipliers, penalty: augmented-Lagrangian warm start.  neighbors: (M, Mo) int32, the
     robot in each other-robot slot of the NLPs (with ``max_neighbors``; -1: none), so
-    that multipliers follow their robot when the selection changes.  retry: (M,) bool,
+    that multipliers follow their robot when the selection changes.  static_ids: (M, Ks)
+    int32, the static row (index into ``FleetParams.static``) in each static-row slot of
+    the NLPs (-1: none yet), so that the static rows' multipliers follow their row when
+    the selection (``max_static_rows``) changes.  retry: (M,) bool,
     the robot's last solve was not accepted: its next solve starts from the cold guesses
     (:func:`solve_fleet`).  deadlock: each robot's stall memory
     (:class:`jaxplan.deadlock.DeadlockState`).
@@ -172,6 +191,7 @@ class PlanState(NamedTuple):
     multipliers: Multipliers
     penalty: jax.Array
     neighbors: jax.Array
+    static_ids: jax.Array
     retry: jax.Array
     deadlock: dl.DeadlockState | None = None
 
@@ -277,8 +297,9 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     M = p.shape[0]
     preds, inflate, floor = view_predictions(fp, views)
     ds, stalled, side, goal_p, goal_v, rest = stall_step(fp, ps, views, p, goal_p, goal_v, rest)
-    params, goal_moved, idx, mult_prev = fleet_nlps(fp, ps, views, preds, inflate, floor, p, v,
-                                                    a, goal_p, goal_v, rest, structure)
+    params, goal_moved, idx, sidx, mult_prev = fleet_nlps(fp, ps, views, preds, inflate, floor,
+                                                          p, v, a, goal_p, goal_v, rest,
+                                                          structure)
     if ds is not None:  # a sidestep starts or ends: the end state's kind changes
         switched = (ps.deadlock.left > 0) != side
         mult_prev = tree_where(switched, jax.tree.map(jnp.zeros_like, mult_prev), mult_prev)
@@ -292,7 +313,7 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
                           plan.evaluate(plan.duration), fallback == BRAKING,
                           fallback == KEPT_PREVIOUS)
     new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32),
-                       (fallback != ACCEPTED) & fp.robot_mask, ds)
+                       sidx, (fallback != ACCEPTED) & fp.robot_mask, ds)
     info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
                       sol.ineq_violation, fallback.astype(jnp.int32),
                       goal_moved & fp.robot_mask, stalled & fp.robot_mask,
@@ -360,8 +381,10 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, flo
                goal_p, goal_v, rest, structure: PlannerStructure):
     """The robots' NLPs (NLPParams, batch (M,)): occupied goals moved (:func:`free_goals`;
     a robot whose goal moved gets a rest end there), the others in the NLPs' slots (all
-    of them in a fixed order, or the nearest ``structure.max_neighbors``).  Returns
-    (params, goal_moved (M,), idx (M, Mo) the other robot in each slot, the previous
+    of them in a fixed order, or the nearest ``structure.max_neighbors``), the static rows
+    in the NLPs' static slots (all of them, or the nearest ``structure.max_static_rows``:
+    :func:`select_static`).  Returns (params, goal_moved (M,), idx (M, Mo) the other robot
+    in each slot, sidx (M, Ks) the static row in each static slot, the previous
     multipliers remapped to those slots)."""
     M = p.shape[0]
     eye = jnp.eye(M, dtype=bool)
@@ -389,15 +412,39 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, flo
     else:  # every other robot, in a fixed order (the multipliers stay in their slots)
         idx = jnp.asarray(all_others(M))
         preds, other_radius, other_mask = take_slots((preds, other_radius, other_mask), idx)
+    static, sidx, lam_static = nlp_static_rows(fp, ps, p, structure)
+    mult_prev = mult_prev._replace(static=lam_static)
     params = NLPParams(
         p0=p, v0=v, a0=a, goal_p=goal_p, goal_v=goal_v, goal_a=jnp.zeros_like(p), rest=rest,
         others=preds, other_radius=other_radius, other_mask=other_mask,
         radius=fp.radius, weights=jax.tree.map(lambda w: jnp.broadcast_to(w, (M,)), fp.weights),
-        limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)),
-        static=None if fp.static is None or not structure.nlp.n_static else jax.tree.map(
-            lambda a: jnp.broadcast_to(a, (M,) + a.shape), fp.static),
+        limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)), static=static,
     )
-    return params, goal_moved, idx, mult_prev
+    return params, goal_moved, idx, sidx, mult_prev
+
+
+def nlp_static_rows(fp: FleetParams, ps: PlanState, p, structure: PlannerStructure):
+    """The static rows in the NLPs' ``structure.nlp.n_static`` = Ks slots: every row of
+    ``fp.static`` in a fixed order, or each robot's Ks nearest to where it is, p (M, N)
+    (:func:`select_static`, ``max_static_rows``).  Returns (StaticRows with leaves
+    (M, Ks, ...) or None, sidx (M, Ks) the row in each slot, the previous static
+    multipliers ``ps.multipliers.static`` following their row: a row new to a robot's
+    selection starts at 0)."""
+    M = p.shape[0]
+    Ks = structure.nlp.n_static
+    lam = ps.multipliers.static
+    if fp.static is None or not Ks:
+        return None, jnp.full((M, Ks), -1, jnp.int32), lam
+    R = fp.static.mask.shape[0]
+    if structure.static_slots(R) != Ks:
+        raise ValueError(f"the NLP has {Ks} static rows, the planner selects "
+                         f"{structure.static_slots(R)} of the world's {R}")
+    if Ks < R:
+        static, sidx = select_static(fp.static, p, fp.radius, Ks)
+        return static, sidx, remap_slots(lam, ps.static_ids, sidx)
+    # every row, in a fixed order (the multipliers stay in their slots)
+    static = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), fp.static)
+    return static, jnp.broadcast_to(jnp.arange(R, dtype=jnp.int32), (M, R)), lam
 
 
 def solve_fleet(fp: FleetParams, ps: PlanState, params: NLPParams, mult_prev,
@@ -595,15 +642,17 @@ def initial_plan_state(p, structure: PlannerStructure, n_others: int) -> PlanSta
     mult = solve.zero_multipliers(dummy, nlp)
     mult = jax.tree.map(lambda m: jnp.zeros((M,) + m.shape), mult)
     return PlanState(plan, jnp.zeros((M,), bool), mult, jnp.zeros((M,)),
-                     jnp.full((M, Mo), -1, jnp.int32), jnp.zeros((M,), bool),
-                     dl.initial_state(p))
+                     jnp.full((M, Mo), -1, jnp.int32), jnp.full((M, nlp.n_static), -1, jnp.int32),
+                     jnp.zeros((M,), bool), dl.initial_state(p))
 
 
 def remap_slots(lam, old_idx, new_idx):
-    """Collision multipliers (M, Kc, Mo) from the old other-robot slots to the new ones:
-    each follows its robot; a robot new to the selection starts at 0.
+    """Multipliers (M, Kc, Mo) from the old slots to the new ones: each follows what is
+    in its slot (another robot's, or a static row's, multipliers); one new to the
+    selection starts at 0.
 
-    Args: lam (M, Kc, Mo); old_idx, new_idx (M, Mo) int (the robot in each slot; -1: none).
+    Args: lam (M, Kc, Mo); old_idx, new_idx (M, Mo) int (the robot or row in each slot;
+    -1: none).
     """
     match = (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx[:, :, None] >= 0)
     return jnp.einsum("mco,mno->mcn", lam, match.astype(lam.dtype))
@@ -659,6 +708,32 @@ def nearest_neighbors(preds: Trajectory, other_radius, mask, K: int):
     d = jnp.min(jnp.linalg.norm(xj - xi[:, None], axis=-1), axis=-1) - other_radius
     d = jnp.where(mask & jnp.isfinite(d), d, jnp.inf)
     _, idx = jax.lax.top_k(-d, K)
+    return idx.astype(jnp.int32)
+
+
+def select_static(static: StaticRows, p, radius, K: int):
+    """Keep each robot's K nearest static rows (:func:`nearest_static_rows`): the rows
+    as StaticRows with leaves (M, K, ...), and their indices (M, K)."""
+    idx = nearest_static_rows(static, p, radius, K)
+    rows = jax.tree.map(lambda a: jnp.broadcast_to(a, (idx.shape[0],) + a.shape), static)
+    return take_slots(rows, idx), idx
+
+
+def nearest_static_rows(static: StaticRows, p, radius, K: int):
+    """For each robot, the K static rows with the least clearance sd(p) - r at its
+    position p: (M, K) int32 indices, nearest first; masked or non-finite rows come last.
+
+    A row is left out only when K others are nearer; it can matter before the next
+    replan only if the robot can reach it by then (docs/SOLVER.md, "Which rows an NLP
+    holds").
+
+    Args: static: StaticRows (R rows).  p: (M, N) m.  radius: (M,) m.  K: static,
+    1 <= K <= R.
+    """
+    gap = signed_distance(static.kind, static.center, static.half, static.radius, p,
+                          xp=jnp) - radius[:, None]  # (M, R)
+    gap = jnp.where(static.mask & jnp.isfinite(gap), gap, jnp.inf)
+    _, idx = jax.lax.top_k(-gap, K)
     return idx.astype(jnp.int32)
 
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import jaxplan  # noqa: F401  (float64)
-from jaxplan import nlp, solve
+from jaxplan import experiment as ex
+from jaxplan import nlp, planner, solve
 from jaxplan.config import ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
 from jaxplan.testing import limits, random_problem, weights
@@ -271,6 +272,129 @@ def test_a_robot_that_starts_inside_its_planning_radius_plans_out():
     assert np.allclose(pos[-1], [6.0, 0.5, 1.0], atol=1e-6)
 
 
+# ---------------------------------------------------------------------- row selection
+SELECT = """
+name = "sel"
+[planner]
+max_static_rows = {K}
+[[robots]]
+vehicle = "firefly"
+start = [0, 0, 1]
+goal = [8, 0, 1]
+[[robots]]
+vehicle = "neo11"
+start = [8, 3, 2]
+goal = [0, 3, 2]
+[[robots]]
+vehicle = "firefly"
+start = [4, 6, 1]
+goal = [4, -3, 1]
+[workspace]
+min = [-2, -5, 0]
+max = [10, 8, 4]
+""" + "".join(f"""[[obstacles]]
+kind = "{kd}"
+center = [{x}, {y}, 1.5]
+{size}
+""" for kd, x, y, size in [
+    ("cylinder", 2.0, 1.5, "radius = 0.3\nhalf_height = 1.5"),
+    ("box", 5.0, 0.8, "half_extents = [0.4, 0.3, 0.6]"),
+    ("sphere", 6.5, 4.5, "radius = 0.5"),
+    ("cylinder", 1.0, -3.5, "radius = 0.4\nhalf_height = 1.0"),
+    ("box", 8.5, 6.0, "half_extents = [0.3, 0.3, 1.5]"),
+    ("sphere", 3.0, 3.0, "radius = 0.3")])  # 6 obstacles and 6 faces: R = 12
+
+
+def _selection_setup(K):
+    """(PlannerStructure, FleetParams, initial PlanState, starts) of SELECT."""
+    cfg = _cfg(SELECT.format(K=K))
+    sc = build_scenario(cfg)
+    st, fp = ex.structures(cfg).planner, ex.fleet_params(cfg, sc)
+    p = jnp.asarray(sc.start)
+    return st, fp, planner.initial_plan_state(p, st, 3), p
+
+
+_static_slots = jax.jit(planner.nlp_static_rows, static_argnums=3)
+
+
+def test_nearest_static_rows_match_brute_force():
+    """The K rows of least clearance sd(p) - r at each robot's position, nearest first,
+    masked padding never picked: against numpy on a world of every kind and its faces."""
+    rng = np.random.default_rng(4)
+    obs = []
+    for kind in ["sphere", "box", "cylinder"] * 4:
+        o = dict(kind=kind, center=rng.uniform(-5, 5, 3))
+        if kind == "box":
+            o["half_extents"] = rng.uniform(0.1, 0.8, 3)
+        else:
+            o["radius"] = rng.uniform(0.2, 0.8)
+        if kind == "cylinder":
+            o["half_height"] = rng.uniform(0.3, 1.5)
+        obs.append(o)
+    w = World(np.array([-6.0, -np.inf, -1.0]), np.array([6.0, 7.0, np.inf]),
+              *obstacle_arrays(obs, 3))
+    rows = static_rows(w, 20)  # 12 obstacles, 4 faces, 4 masked
+    M, K = 9, 5
+    p = rng.uniform(-6, 6, (M, 3))
+    r = rng.uniform(0.2, 0.5, M)
+    jrows = StaticRows(*(jnp.asarray(a) for a in rows))
+    idx = np.asarray(jax.jit(planner.nearest_static_rows, static_argnums=3)(
+        jrows, jnp.asarray(p), jnp.asarray(r), K))
+    gap = signed_distance(*rows[:4], p) - r[:, None]
+    gap = np.where(rows.mask, gap, np.inf)
+    for i in range(M):
+        np.testing.assert_array_equal(idx[i], np.argsort(gap[i], kind="stable")[:K])
+    sel, idx2 = jax.jit(planner.select_static, static_argnums=3)(jrows, jnp.asarray(p),
+                                                                 jnp.asarray(r), K)
+    np.testing.assert_array_equal(idx2, idx)
+    for a, b in zip(sel, rows, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[idx])
+
+
+def test_static_multipliers_follow_their_row_across_a_reselection():
+    """The NLPs' static rows (fleet_nlps) with max_static_rows = 3 of 12: each NLP holds
+    its 3 nearest rows (PlanState.static_ids), and a row that stays selected keeps its
+    multipliers in whichever slot it moves to, a newly selected one starts at 0."""
+    st, fp, ps, p = _selection_setup(3)
+    assert st.nlp.n_static == 3 and fp.static.mask.shape == (12,)
+    assert ps.static_ids.shape == (3, 3) and ps.multipliers.static.shape[-1] == 3
+    want = np.asarray(jax.jit(planner.nearest_static_rows, static_argnums=3)(
+        fp.static, p, fp.radius, 3))
+    # the previous selection: robot m's nearest row in slot 2, its third nearest in slot
+    # 0, and a row it has not selected now (slot 1)
+    rng = np.random.default_rng(2)
+    old = np.stack([[w[2], next(j for j in range(12) if j not in w), w[0]] for w in want])
+    lam = rng.uniform(1, 2, ps.multipliers.static.shape)
+    ps = ps._replace(static_ids=jnp.asarray(old, jnp.int32),
+                     multipliers=ps.multipliers._replace(static=jnp.asarray(lam)))
+    rows, sidx, out = _static_slots(fp, ps, p, st)
+    np.testing.assert_array_equal(sidx, want)
+    for a, b in zip(rows, fp.static, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[want])
+    out = np.asarray(out)
+    for m in range(3):
+        np.testing.assert_array_equal(out[m, :, 0], lam[m, :, 2])  # the nearest row
+        np.testing.assert_array_equal(out[m, :, 1], 0.0)  # new to the selection
+        np.testing.assert_array_equal(out[m, :, 2], lam[m, :, 0])  # the third nearest
+
+
+def test_as_many_static_rows_as_the_world_has_is_no_selection():
+    """max_static_rows >= R: the same structure (so the same compiled program, the same
+    results) as 0, and every NLP holds every row in order with its multipliers in place."""
+    structs = [ex.structures(_cfg(SELECT.format(K=K))) for K in (0, 12, 40)]
+    assert structs[0] == structs[1] == structs[2]
+    assert structs[0].planner.nlp.n_static == 12
+    assert ex.structures(_cfg(SELECT.format(K=11))).planner.nlp.n_static == 11
+    st, fp, ps, p = _selection_setup(12)
+    lam = np.random.default_rng(3).uniform(1, 2, ps.multipliers.static.shape)
+    ps = ps._replace(multipliers=ps.multipliers._replace(static=jnp.asarray(lam)))
+    rows, sidx, out = _static_slots(fp, ps, p, st)
+    np.testing.assert_array_equal(sidx, np.broadcast_to(np.arange(12), (3, 12)))
+    for a, b in zip(rows, fp.static, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.broadcast_to(b, a.shape))
+    np.testing.assert_array_equal(np.asarray(out), lam)
+
+
 # ---------------------------------------------------------------------- config
 BASE = """
 name = "w"
@@ -331,6 +455,10 @@ def test_world_config_round_trips_and_builds():
     (("center = [2.5, 0, 1.5]", "center = [2.5, 0]"),
      "w.toml: obstacles[0].center: expected 3 coordinates"),
     (("radius = 0.3", "radius = 0.3\ncolour = 1"), "w.toml: obstacles[0].colour: unknown key"),
+    (('name = "w"', 'name = "w"\n[planner]\nmax_static_rows = -1'),
+     "w.toml: planner.max_static_rows: must be >= 0, got -1"),
+    (('name = "w"', 'name = "w"\n[planner]\nmax_static_rows = 2.5'),
+     "w.toml: planner.max_static_rows: expected an integer, got 2.5"),
 ])
 def test_world_config_errors_name_the_key(edit, message):
     with pytest.raises(ConfigError) as e:

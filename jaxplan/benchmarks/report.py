@@ -219,9 +219,11 @@ def _obstacles_row(o: dict, n_kinds: int) -> str:
     w, n = o["with"], o["none"]
     per = lambda x: 1e3 * x["warm_ms"] / max(1.0, float(np.median(x["warm_iters_sum"])))
     its = lambda x: float(np.median(x["warm_iters_sum"]))
+    rows = lambda x: (f"{x['n_static']} of {x['static_rows']}" if "static_rows" in x
+                      else f"{x['n_static']}")
     why = (f"{o['warm_ratio']:.2f}x: lane-iterations per replan {its(w):.0f} vs {its(n):.0f}, "
            f"{per(w):.0f} vs {per(n):.0f} us each "
-           f"({w['n_static']} static rows vs {n['n_static']})")
+           f"({rows(w)} static rows per NLP vs {rows(n)})")
     return (f"| 10-robot warm fleet replan with {o['obstacles']} obstacles vs none (random_"
             f"obstacles world, arena walls and ceiling in both; whole machine) | "
             f"{_ms(w['warm_ms'])} vs {_ms(n['warm_ms'])}: {o['warm_ratio']:.2f}x, "

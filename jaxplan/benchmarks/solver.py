@@ -21,7 +21,8 @@ in this process (its CPU devices), the references over one process per core.  Al
 benchmark has always had (``fleet10``, ``slsqp10_*``, ``fleet100``, ``fleet100_k``,
 ``batch64x10``: the paper's NLP, the whole machine), and ``product.obstacles20``
 (:func:`obstacles_row`): the product NLP's 10-robot warm replan among 20 obstacles
-against the same fleet and arena without them.
+against the same fleet and arena without them, its NLPs built by the planner's
+:func:`jaxplan.planner.fleet_nlps` (each holding its ``max_static_rows`` nearest rows).
 
 Its fleets come from :mod:`jaxplan.testing` and jaxplan/scenarios/worlds.py.
 """
@@ -175,18 +176,68 @@ def nlp_setup(kind: str):
     return _planner_setup(_product_config())
 
 
+def _testing_nlps(goals, kw, max_neighbors=0):
+    """An NLP builder for :func:`_fleet_cases`: (pos, vel, acc, previous Solution or
+    None) -> (the fleet's NLPParams as :func:`jaxplan.testing.fleet_params` builds them
+    with keywords ``kw``, the previous multipliers following their robot)."""
+    slots = {}
+
+    def nlps(pos, vel, acc, prev):
+        P, idx = fleet_params(pos, vel, acc, goals, max_neighbors=max_neighbors,
+                              return_neighbors=True, **kw)
+        mult = None if prev is None else prev.multipliers._replace(
+            collision=_planner.remap_slots(prev.multipliers.collision, slots["idx"], idx))
+        slots["idx"] = idx
+        return P, mult
+
+    return nlps
+
+
+@functools.partial(jax.jit, static_argnames="structure")
+def _fleet_nlps_jit(fp, ps, pos, vel, acc, goals, rest, structure):
+    z = jnp.zeros_like(goals)
+    views = _planner.fresh_views(pos, vel, acc, goals, z, rest)
+    preds, inflate, floor = _planner.view_predictions(fp, views)
+    params, _, idx, sidx, mult = _planner.fleet_nlps(fp, ps, views, preds, inflate, floor, pos,
+                                                      vel, acc, goals, z, rest, structure)
+    return params, mult, idx, sidx
+
+
+def _planner_nlps(fp, structure, goals, rest):
+    """An NLP builder for :func:`_fleet_cases` that goes the planner's way
+    (:func:`jaxplan.planner.fleet_nlps` on fresh views, FleetParams ``fp``,
+    PlannerStructure ``structure``): its neighbour and static-row selection, the previous
+    multipliers following their robot and their row."""
+    M = goals.shape[0]
+    # (the plan state's plans are not used here: only its multipliers and slots)
+    state = {"ps": _planner.initial_plan_state(jnp.asarray(goals), structure, M)}
+    goals, rest = jnp.asarray(goals), jnp.asarray(rest)
+
+    def nlps(pos, vel, acc, prev):
+        ps = state["ps"]
+        if prev is not None:
+            ps = ps._replace(multipliers=prev.multipliers, has_plan=jnp.ones((M,), bool))
+        P, mult, idx, sidx = _fleet_nlps_jit(fp, ps, jnp.asarray(pos), jnp.asarray(vel),
+                                             jnp.asarray(acc), goals, rest, structure)
+        state["ps"] = ps._replace(neighbors=idx, static_ids=sidx)
+        return P, (None if prev is None else mult)
+
+    return nlps
+
+
 def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=None,
-                 fleet=None):
+                 fleet=None, nlps=None):
     """JAX on an M-robot fleet: the cold replan and ``steps`` warm ones, each timed
     (median of ``reps`` calls); the cases (params, start, solution) for the references.
     setup: (structure, settings, keywords) instead of :func:`nlp_setup`'s; fleet:
-    (starts, goals) instead of an antipodal fleet."""
+    (starts, goals) instead of an antipodal fleet; nlps: how the NLPs are built
+    (default :func:`_testing_nlps`)."""
     structure, settings, kw = setup or nlp_setup(kind)
     rng = np.random.default_rng(seed)
     pos, goals = fleet if fleet is not None else antipodal(M, radius_m, rng)
+    nlps = nlps or _testing_nlps(goals, kw, max_neighbors)
     z = np.zeros_like(pos)
-    P, idx = fleet_params(pos, z, z, goals, max_neighbors=max_neighbors, return_neighbors=True,
-                          **kw)
+    P, _ = nlps(pos, z, z, None)
     t0 = time.perf_counter()
     jax.block_until_ready(_cold(P, structure, settings))
     compile_s = time.perf_counter() - t0
@@ -200,12 +251,8 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
     for _ in range(steps):
         tr = sol.traj
         pos, vel, acc = (np.asarray(a) for a in tr.state_at(jnp.full(tr.batch_shape, DT)))
-        P, idx_new = fleet_params(pos, vel, acc, goals, max_neighbors=max_neighbors,
-                                  return_neighbors=True, **kw)
+        P, mult = nlps(pos, vel, acc, sol)
         x0 = ws(tr, P)
-        mult = sol.multipliers._replace(
-            collision=_planner.remap_slots(sol.multipliers.collision, idx, idx_new))
-        idx = idx_new
         fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu)
         sol, ms = _timed(fn, P, x0, mult, sol.penalty, repeats=reps)
         cases.append(dict(P=P, x0=x0, sol=jax.device_get(sol), ms=ms))
@@ -409,30 +456,43 @@ def product_and_paper(quick: bool = False) -> dict:
 OBSTACLES = 20  # the world row: a random_obstacles world of this many obstacles
 
 
-def obstacles_row(reps: int = 5, steps: int = WARM_STEPS, obstacles: int = OBSTACLES) -> dict:
+def obstacles_row(reps: int = 5, steps: int = WARM_STEPS, obstacles: int = OBSTACLES,
+                  max_static_rows: int | None = None) -> dict:
     """The 10-robot warm fleet replan of the product NLP in a world with ``obstacles``
     random obstacles (jaxplan/scenarios/worlds.py's random_obstacles, seed 0: its
     starts, goals, arena walls and ceiling) against the same fleet in the same arena
-    without them; JAX in this process, the same repeats and warm replans for both."""
+    without them; JAX in this process, the same repeats and warm replans for both.  The
+    NLPs are built as the planner builds them (:func:`_planner_nlps`): each holds the
+    ``[planner] max_static_rows`` nearest of the world's static rows (``n_static`` of
+    ``static_rows``; ``max_static_rows``: instead of the default)."""
+    from jaxplan import experiment
     from jaxplan.config import build_scenario, parse_config
 
-    cfg = parse_config({"name": "bench_obstacles", "seed": 0,
+    planner = {} if max_static_rows is None else {"max_static_rows": max_static_rows}
+    cfg = parse_config({"name": "bench_obstacles", "seed": 0, "planner": planner,
                         "scenario": {"kind": "random_obstacles", "count": 10,
                                      "obstacles": obstacles}})
     sc = build_scenario(cfg)
     out = {}
     for name, scen in (("with", sc), ("none", sc.with_world(sc.world.with_obstacles([])))):
-        setup = _planner_setup(cfg, scen)
+        R = static_rows(scen.world).mask.shape[0]
+        planner = experiment.structures(cfg, n_static=R).planner
+        fp = experiment.fleet_params(cfg, scen, n_static=R)
+        goals = np.asarray(scen.waypoints[:, -1])
         structure, cases, comp, _ = _fleet_cases(
-            "product", 10, 0.0, 0, steps, reps, setup=setup,
-            fleet=(np.asarray(scen.start), np.asarray(scen.waypoints[:, -1])))
+            "product", 10, 0.0, 0, steps, reps, setup=(planner.nlp, fp.settings, {}),
+            fleet=(np.asarray(scen.start), goals),
+            nlps=_planner_nlps(fp, planner, goals, np.asarray(scen.rest[:, -1])))
         conv = [float(np.mean(c["sol"].status == solve.CONVERGED)) for c in cases[1:]]
-        out[name] = dict(n_static=structure.n_static, compile_s=comp, cold_ms=cases[0]["ms"],
+        out[name] = dict(n_static=structure.n_static, static_rows=R, compile_s=comp,
+                         cold_ms=cases[0]["ms"],
                          warm_ms=float(statistics.median(c["ms"] for c in cases[1:])),
                          warm_ms_all=[c["ms"] for c in cases[1:]],
                          warm_conv=float(np.mean(conv)),
                          warm_iters_sum=[int(np.sum(c["sol"].iterations)) for c in cases[1:]])
     out.update(obstacles=obstacles, repeats=reps, warm_replans=steps,
+               max_static_rows=cfg.planner.max_static_rows,
+               loadavg_1min=__import__("os").getloadavg()[0],
                warm_ratio=out["with"]["warm_ms"] / out["none"]["warm_ms"])
     return out
 

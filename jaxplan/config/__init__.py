@@ -6,7 +6,7 @@
     seed = 0                          # 0 <= seed < 2**63; seeds every random choice
     [planner]  replan_hz, q_dynm, q_obs, q_lim, k_t, k_p, collision, degree, segments,
                end_state, max_iters, tol, n_samples, safety_margin_m, max_neighbors,
-               coast_samples, solver_pool
+               max_static_rows, coast_samples, solver_pool
     [limits]   v_max, a_max, j_max    (optional overrides of the per-vehicle defaults)
     [sim]      backend, duration_s, physics_hz, control_hz, goal_tolerance_m,
                goal_speed_tolerance_mps
@@ -68,6 +68,7 @@ from jaxplan.config.schema import (
     DEFAULT_K_T,
     DEFAULT_MAX_ITERS,
     DEFAULT_MAX_NEIGHBORS,
+    DEFAULT_MAX_STATIC_ROWS,
     DEFAULT_N_SAMPLES,
     DEFAULT_PHYSICS_HZ,
     DEFAULT_Q_DYNM,
@@ -126,6 +127,7 @@ __all__ = [
     "DEFAULT_K_T",
     "DEFAULT_MAX_ITERS",
     "DEFAULT_MAX_NEIGHBORS",
+    "DEFAULT_MAX_STATIC_ROWS",
     "DEFAULT_N_SAMPLES",
     "DEFAULT_PHYSICS_HZ",
     "DEFAULT_Q_DYNM",

@@ -53,6 +53,8 @@ DEFAULT_TOL = 1e-8                       # solver feasibility (m^2) / complement
 DEFAULT_N_SAMPLES = 32                   # collision samples / quadrature nodes per horizon
 DEFAULT_SAFETY_MARGIN_M = 0.05           # m added to every radius when planning (not in metrics)
 DEFAULT_MAX_NEIGHBORS = 0                # 0: every other robot is in each robot's NLP
+DEFAULT_MAX_STATIC_ROWS = 8              # static rows per NLP, the nearest (docs/SOLVER.md)
+MAX_STATIC_ROWS = 100_000
 DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solve.default_pool)
 DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
 MAX_COAST_SAMPLES = 256
@@ -127,6 +129,9 @@ class PlannerConfig:
     the others' replanning).  max_neighbors (>= 0): 0 puts every other robot in each
     robot's NLP; K >= 1 only the K that come nearest to its own prediction (the NLP's
     cost then stays flat as the fleet grows; jaxplan.planner.nearest_neighbors).
+    max_static_rows (>= 0): each robot's NLP holds only the K static rows (obstacles and
+    finite workspace faces) nearest to where it is at each replan
+    (jaxplan.planner.nearest_static_rows); 0, or a world of at most K rows: every row.
     coast_samples (>= 0): a free-end plan must also keep clear of the others on its coast
     after T (p(T) + v(T) t, for t up to the time a stop from v_max takes) at this many
     sample times (hard constraints; only in the "constraint" modes; 0 = off, the paper's
@@ -156,6 +161,7 @@ class PlannerConfig:
     n_samples: integer(ge=2, le=MAX_SAMPLES) = DEFAULT_N_SAMPLES
     safety_margin_m: number(ge=0.0, le=10.0) = DEFAULT_SAFETY_MARGIN_M
     max_neighbors: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_MAX_NEIGHBORS
+    max_static_rows: integer(ge=0, le=MAX_STATIC_ROWS) = DEFAULT_MAX_STATIC_ROWS
     coast_samples: integer(ge=0, le=MAX_COAST_SAMPLES) = DEFAULT_COAST_SAMPLES
     solver_pool: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_SOLVER_POOL
     deadlock: string(one_of(RESOLUTIONS)) = DEFAULT_DEADLOCK
