@@ -412,7 +412,7 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, flo
     else:  # every other robot, in a fixed order (the multipliers stay in their slots)
         idx = jnp.asarray(all_others(M))
         preds, other_radius, other_mask = take_slots((preds, other_radius, other_mask), idx)
-    static, sidx, lam_static = nlp_static_rows(fp, ps, p, structure)
+    static, sidx, lam_static = nlp_static_rows(fp, ps, p, structure, goal_p)
     mult_prev = mult_prev._replace(static=lam_static)
     params = NLPParams(
         p0=p, v0=v, a0=a, goal_p=goal_p, goal_v=goal_v, goal_a=jnp.zeros_like(p), rest=rest,
@@ -423,13 +423,15 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, views: Views, preds, inflate, flo
     return params, goal_moved, idx, sidx, mult_prev
 
 
-def nlp_static_rows(fp: FleetParams, ps: PlanState, p, structure: PlannerStructure):
+def nlp_static_rows(fp: FleetParams, ps: PlanState, p, structure: PlannerStructure,
+                    goal_p=None):
     """The static rows in the NLPs' ``structure.nlp.n_static`` = Ks slots: every row of
-    ``fp.static`` in a fixed order, or each robot's Ks nearest to where it is, p (M, N)
-    (:func:`select_static`, ``max_static_rows``).  Returns (StaticRows with leaves
-    (M, Ks, ...) or None, sidx (M, Ks) the row in each slot, the previous static
-    multipliers ``ps.multipliers.static`` following their row: a row new to a robot's
-    selection starts at 0)."""
+    ``fp.static`` in a fixed order, or each robot's Ks nearest to where it is, p (M, N),
+    and where it is headed: its previous plan and its line to ``goal_p`` (M, N)
+    (:func:`heading_points`; None: p alone) (:func:`select_static`, ``max_static_rows``).
+    Returns (StaticRows with leaves (M, Ks, ...) or None, sidx (M, Ks) the row in each
+    slot, the previous static multipliers ``ps.multipliers.static`` following their row:
+    a row new to a robot's selection starts at 0)."""
     M = p.shape[0]
     Ks = structure.nlp.n_static
     lam = ps.multipliers.static
@@ -440,7 +442,8 @@ def nlp_static_rows(fp: FleetParams, ps: PlanState, p, structure: PlannerStructu
         raise ValueError(f"the NLP has {Ks} static rows, the planner selects "
                          f"{structure.static_slots(R)} of the world's {R}")
     if Ks < R:
-        static, sidx = select_static(fp.static, p, fp.radius, Ks)
+        pts = p if goal_p is None else heading_points(ps, p, goal_p, fp.dt)
+        static, sidx = select_static(fp.static, pts, fp.radius, Ks)
         return static, sidx, remap_slots(lam, ps.static_ids, sidx)
     # every row, in a fixed order (the multipliers stay in their slots)
     static = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), fp.static)
@@ -660,6 +663,8 @@ def remap_slots(lam, old_idx, new_idx):
 
 NEIGHBOR_HORIZON_S = (1.0, 10.0)  # s: the window nearest_neighbors looks over (clipped)
 NEIGHBOR_SAMPLES = 16
+STATIC_PATH_SAMPLES = 8  # points of the previous plan, and of the line to the goal, by
+# which each robot chooses its static rows (heading_points)
 
 
 def all_others(M: int) -> np.ndarray:
@@ -712,29 +717,54 @@ def nearest_neighbors(preds: Trajectory, other_radius, mask, K: int):
 
 
 def select_static(static: StaticRows, p, radius, K: int):
-    """Keep each robot's K nearest static rows (:func:`nearest_static_rows`): the rows
-    as StaticRows with leaves (M, K, ...), and their indices (M, K)."""
+    """Keep each robot's K nearest static rows (:func:`nearest_static_rows`, p (M, N) or
+    (M, S, N) as there): the rows as StaticRows with leaves (M, K, ...), and their
+    indices (M, K)."""
     idx = nearest_static_rows(static, p, radius, K)
     rows = jax.tree.map(lambda a: jnp.broadcast_to(a, (idx.shape[0],) + a.shape), static)
     return take_slots(rows, idx), idx
 
 
 def nearest_static_rows(static: StaticRows, p, radius, K: int):
-    """For each robot, the K static rows with the least clearance sd(p) - r at its
-    position p: (M, K) int32 indices, nearest first; masked or non-finite rows come last.
+    """For each robot, the K static rows nearest to it: (M, K) int32 indices, nearest
+    first; masked or non-finite rows come last.
 
-    A row is left out only when K others are nearer; it can matter before the next
-    replan only if the robot can reach it by then (docs/SOLVER.md, "Which rows an NLP
-    holds").
+    With p (M, N), a robot's position, a row's key is its clearance sd(p) - r there.
+    With p (M, S, N), points of where the robot is and where it is headed
+    (:func:`heading_points`), the key is the least clearance over the points: how near
+    the row comes to the robot's way.  (A key that adds the distance flown to each point
+    ranks exactly as the clearance at the position alone: the signed distance is
+    1-Lipschitz.)  So a row that its previous plan or its line to the goal passes is kept
+    ahead of one as near to where it is but off its way (docs/SOLVER.md, "Which rows an
+    NLP holds").
 
-    Args: static: StaticRows (R rows).  p: (M, N) m.  radius: (M,) m.  K: static,
-    1 <= K <= R.
+    Args: static: StaticRows (R rows).  p: (M, N) or (M, S, N) m.  radius: (M,) m.
+    K: static, 1 <= K <= R.
     """
-    gap = signed_distance(static.kind, static.center, static.half, static.radius, p,
-                          xp=jnp) - radius[:, None]  # (M, R)
-    gap = jnp.where(static.mask & jnp.isfinite(gap), gap, jnp.inf)
-    _, idx = jax.lax.top_k(-gap, K)
+    if p.ndim == 2:
+        p = p[:, None, :]
+    M, S, N = p.shape
+    gap = signed_distance(static.kind, static.center, static.half, static.radius,
+                          p.reshape(M * S, N), xp=jnp).reshape(M, S, -1) - radius[:, None, None]
+    key = jnp.where(jnp.isfinite(gap), gap, jnp.inf).min(axis=1)
+    key = jnp.where(static.mask, key, jnp.inf)
+    _, idx = jax.lax.top_k(-key, K)
     return idx.astype(jnp.int32)
+
+
+def heading_points(ps: PlanState, p, goal_p, dt, samples: int = STATIC_PATH_SAMPLES):
+    """Where each robot is and is headed, for choosing its static rows: its position,
+    ``samples`` points of its previous plan from now on (where it has a finite one;
+    else its position) and ``samples`` points of the line to its goal (a non-finite goal:
+    its position).  Returns (M, 1 + 2 samples, N)."""
+    frac = jnp.linspace(0.0, 1.0, samples + 1)[1:]
+    prev = ps.plan.shift(dt)
+    on_plan = prev.sample(prev.duration[:, None] * frac[None, :])  # (M, S, N)
+    ok = ps.has_plan & jnp.all(jnp.isfinite(on_plan), axis=(-1, -2))
+    on_plan = jnp.where(ok[:, None, None], on_plan, p[:, None, :])
+    g = jnp.where(jnp.isfinite(goal_p), goal_p, p)
+    on_line = p[:, None, :] + frac[None, :, None] * (g - p)[:, None, :]
+    return jnp.concatenate([p[:, None], on_plan, on_line], axis=1)
 
 
 def _dummy_params(N: int, Mo: int) -> NLPParams:

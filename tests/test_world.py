@@ -349,6 +349,37 @@ def test_nearest_static_rows_match_brute_force():
     np.testing.assert_array_equal(idx2, idx)
     for a, b in zip(sel, rows, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[idx])
+    # where each robot is and is headed: the previous plan's points (robots with a plan)
+    # and the line to its goal; each row keyed by its least clearance over the points
+    goal = rng.uniform(-6, 6, (M, 3))
+    T = 2.0  # a previous plan that flies +x at 1 m/s for 2 s, then holds
+    coeffs = np.zeros((M, 2, 3, 6))
+    coeffs[:, :, :, 0] = p[:, None, :]
+    coeffs[:, 1, 0, 0] += 1.0
+    coeffs[:, :, 0, 1] = 1.0
+    plan = Trajectory(jnp.asarray(coeffs), jnp.asarray(np.tile([0.0, 1.0, T], (M, 1))),
+                      jnp.zeros((M,), bool))
+    has = np.arange(M) % 2 == 0
+    ps = planner.PlanState(plan, jnp.asarray(has), *([None] * 5))
+    dt = 0.125
+    pts = np.asarray(jax.jit(planner.heading_points)(ps, jnp.asarray(p), jnp.asarray(goal), dt))
+    S = planner.STATIC_PATH_SAMPLES
+    frac = np.arange(1, S + 1) / S
+    on_plan = p[:, None] + np.where(has[:, None, None], 1.0, 0.0) * (
+        (T - dt) * frac)[None, :, None] * np.array([1.0, 0, 0])
+    np.testing.assert_allclose(pts[:, 0], p, atol=1e-12)
+    np.testing.assert_allclose(pts[:, 1:1 + S], on_plan + dt * has[:, None, None] * [1.0, 0, 0],
+                               atol=1e-12)
+    np.testing.assert_allclose(pts[:, 1 + S:], p[:, None] + frac[None, :, None] *
+                               (goal - p)[:, None], atol=1e-12)
+    idx_h = np.asarray(jax.jit(planner.nearest_static_rows, static_argnums=3)(
+        jrows, jnp.asarray(pts), jnp.asarray(r), K))
+    gaps = np.stack([signed_distance(*rows[:4], pts[:, k]) for k in range(pts.shape[1])], 1)
+    key = np.where(rows.mask, (gaps - r[:, None, None]).min(axis=1), np.inf)
+    for i in range(M):
+        np.testing.assert_array_equal(idx_h[i], np.argsort(key[i], kind="stable")[:K])
+    # rows on the robots' way rank before rows as near but off it
+    assert not np.array_equal(idx_h, idx)
 
 
 def test_static_multipliers_follow_their_row_across_a_reselection():

@@ -209,14 +209,16 @@ def _planner_nlps(fp, structure, goals, rest):
     PlannerStructure ``structure``): its neighbour and static-row selection, the previous
     multipliers following their robot and their row."""
     M = goals.shape[0]
-    # (the plan state's plans are not used here: only its multipliers and slots)
+    # the plan state: the previous solution's plans (by which the static rows are
+    # chosen), multipliers and slots
     state = {"ps": _planner.initial_plan_state(jnp.asarray(goals), structure, M)}
     goals, rest = jnp.asarray(goals), jnp.asarray(rest)
 
     def nlps(pos, vel, acc, prev):
         ps = state["ps"]
         if prev is not None:
-            ps = ps._replace(multipliers=prev.multipliers, has_plan=jnp.ones((M,), bool))
+            ps = ps._replace(plan=prev.traj, multipliers=prev.multipliers,
+                             has_plan=jnp.ones((M,), bool))
         P, mult, idx, sidx = _fleet_nlps_jit(fp, ps, jnp.asarray(pos), jnp.asarray(vel),
                                              jnp.asarray(acc), goals, rest, structure)
         state["ps"] = ps._replace(neighbors=idx, static_ids=sidx)
