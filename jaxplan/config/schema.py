@@ -130,7 +130,7 @@ class PlannerConfig:
     robot's NLP; K >= 1 only the K that come nearest to its own prediction (the NLP's
     cost then stays flat as the fleet grows; jaxplan.planner.nearest_neighbors).
     max_static_rows (>= 0): each robot's NLP holds only the K static rows (obstacles and
-    finite workspace faces) nearest to where it is at each replan
+    finite workspace faces) nearest to where it is and is headed at each replan
     (jaxplan.planner.nearest_static_rows); 0, or a world of at most K rows: every row.
     coast_samples (>= 0): a free-end plan must also keep clear of the others on its coast
     after T (p(T) + v(T) t, for t up to the time a stop from v_max takes) at this many
