@@ -11,6 +11,7 @@ tests/test_costs.py.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -231,9 +232,9 @@ def _lim_jets(params, structure, name, tau):
 
 
 def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
-    """Value, gradient and Hessian of the soft limits (``w`` the quadrature weights) or of
-    the hard-limit AL terms (``lam`` (K, 3)) through their three radial feature groups;
-    and the features Y (3, N, K)."""
+    """Value and :func:`_chain`'s local terms (G, Hgg, HgT, GT, HTT) of the soft limits
+    (``w`` the quadrature weights) or of the hard-limit AL terms (``lam`` (K, 3)) in
+    their three radial feature groups; and the features Y (3, N, K)."""
     lim = params.limits
     (b, C), _, _ = jets
     Y = b + jnp.sum(z[None, :, :, None] * jnp.swapaxes(C, 1, 2)[:, None], axis=2)  # (3, N, K)
@@ -255,8 +256,7 @@ def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
     G = 2.0 * cd[:, None] * Y
     Hgg = (4.0 * cdd[:, None, None] * Y[:, :, None] * Y[:, None, :]
            + 2.0 * cd[:, None, None] * jnp.eye(N, dtype=z.dtype)[:, :, None])
-    g, H = _chain(z, T, jets, G, Hgg, HgT, GT, jnp.zeros(K, z.dtype))
-    return val, g, H, Y
+    return val, (G, Hgg, HgT, GT, jnp.zeros(K, z.dtype)), Y
 
 
 def _col_affine(params, structure, kind):
@@ -346,9 +346,11 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
 
 def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, mu,
                       with_g: bool, others: OthersPrep | None, jets=None):
-    """(value, gradient, Hessian, g_collision) of the sampled collision terms (barrier
-    and the AL terms of the collision constraints) for :func:`merit_derivs`; g_collision
-    (n_col, Mo) the constraints where ``with_g`` and the mode has them, else ones."""
+    """(value, local terms, g_collision) of the sampled collision terms (barrier and the
+    AL terms of the collision constraints) for :func:`merit_derivs`: the local terms are
+    :func:`_chain`'s (G, Hgg, HgT, GT, HTT) at the collision rows' positions, one
+    group; g_collision (n_col, Mo) the constraints where ``with_g`` and the mode has
+    them, else ones."""
     N = structure.n_dim
     Mo = params.other_mask.shape[-1]
     gc = jnp.ones((structure.n_col, Mo), x.dtype)
@@ -393,17 +395,17 @@ def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, 
     HpT = jnp.sum((4.0 * cdd * Xu + 2.0 * a1) * X + 2.0 * cd * u, axis=1)
     q = jnp.sum(u * u + X * ww, axis=0)
     HTT = jnp.sum(cdd * (2.0 * Xu) ** 2 + 2.0 * cd * q + 4.0 * a1 * Xu, axis=0)
-    g, H = _chain(z, T, jets, Gp[None], Hpp[None], HpT[None], GT, HTT)
-    return v, g, H, gc
+    return v, (Gp[None], Hpp[None], HpT[None], GT, HTT), gc
 
 
 def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g: bool):
-    """(value, gradient, Hessian, g_static) of the static rows' terms (barrier and AL
-    terms, :func:`jaxplan.nlp.terms.static_local`) for :func:`merit_derivs`.  Each
-    collision row's local term is F_k = T B_k(p) + A_k(p) (B the barrier without its T
-    factor, A the AL terms); their p derivatives come from autodiff per row (small: N
-    variables), the rest from :func:`_chain`.  g_static (n_col, R): the constraints where
-    ``with_g`` and the mode has them, else ones."""
+    """(value, local terms, g_static) of the static rows' terms (barrier and AL terms,
+    :func:`jaxplan.nlp.terms.static_local`) for :func:`merit_derivs`.  Each collision
+    row's local term is F_k = T B_k(p) + A_k(p) (B the barrier without its T factor, A
+    the AL terms); their p derivatives come from autodiff per row (small: N variables):
+    :func:`_chain`'s local terms (G, Hgg, HgT, GT, HTT) at the collision rows' positions,
+    one group.  g_static (n_col, R): the constraints where ``with_g`` and the mode has
+    them, else ones."""
     params_s = params
     _, _, w, on = collision_rows(params, structure)
     (bp, C), _, _ = jets
@@ -435,12 +437,12 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     v = jnp.sum(T * bv + av)
     G = (T * bg + ag).T  # (N, K)
     Hgg = jnp.transpose(T * bH + aH, (1, 2, 0))  # (N, N, K)
-    g, H = _chain(z, T, jets, G[None], Hgg[None], bg.T[None], bv, jnp.zeros_like(bv))
+    local = (G[None], Hgg[None], bg.T[None], bv, jnp.zeros_like(bv))
     gs = jnp.ones((structure.n_col, structure.n_static), z.dtype)
     if with_g and structure.collision_constraints:
         gap = jax.vmap(lambda pk: static_gap(pk, params))(p) - allow
         gs = jnp.where(st.mask[None, :] & on[:, None], 2.0 * r * gap, 1.0)
-    return v, g, H, gs
+    return v, local, gs
 
 
 def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool = False,
@@ -461,23 +463,33 @@ def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool
     gh = jnp.ones((len(b.lim_s), 3), x.dtype)
     tv, tg, tH = _smooth_time_derivs(x, params, structure, kind)
     jq = _lim_jets(params, structure, "quad", tau)
-    v, g, H, _ = _lim_terms(z, T, jq, jnp.asarray(b.quad_w), None, params, mu, True)
+    v, loc, _ = _lim_terms(z, T, jq, jnp.asarray(b.quad_w), None, params, mu, True)
+    g, H = _chain(z, T, jq, *loc)
     tv, tg, tH = tv + v, tg + g, tH + H
     if structure.paper:
         v, g, H = _value_grad_hessian(lambda xx: paper_collision(xx, params, structure, kind), x)
         tv, tg, tH = tv + v, tg + g, tH + H
     gs = jnp.ones((structure.n_col, structure.n_static), x.dtype)
     jets = _col_jets(params, structure, kind, tau) if needs_col_features(structure) else None
+    # the static rows' and the other robots' terms share the collision rows' positions:
+    # their local terms are summed and go through one chain rule (it is linear in them)
+    local = []
     if structure.static_terms:
-        v, g, H, gs = _static_derivs(z, T, jets, params, structure, mult, mu, with_g)
-        tv, tg, tH = tv + v, tg + g, tH + H
+        v, loc, gs = _static_derivs(z, T, jets, params, structure, mult, mu, with_g)
+        tv = tv + v
+        local.append(loc)
     if has_sampled_collision(structure):
-        v, g, H, gc = _collision_derivs(x, z, T, tau, params, structure, kind, mult, mu, with_g,
-                                        others, jets)
-        tv, tg, tH = tv + v, tg + g, tH + H
+        v, loc, gc = _collision_derivs(x, z, T, tau, params, structure, kind, mult, mu, with_g,
+                                       others, jets)
+        tv = tv + v
+        local.append(loc)
+    if local:
+        g, H = _chain(z, T, jets, *(functools.reduce(jnp.add, t) for t in zip(*local, strict=True)))
+        tg, tH = tg + g, tH + H
     if structure.hard_limits:
         jh = _lim_jets(params, structure, "lim", tau)
-        v, g, H, Yh = _lim_terms(z, T, jh, None, mult.limits, params, mu, False)
+        v, loc, Yh = _lim_terms(z, T, jh, None, mult.limits, params, mu, False)
+        g, H = _chain(z, T, jh, *loc)
         tv, tg, tH = tv + v, tg + g, tH + H
         if with_g:
             lim = params.limits
