@@ -65,6 +65,7 @@ import numpy as np
 from jaxplan import deadlock as dl
 from jaxplan import solve
 from jaxplan.nlp import Limits, Multipliers, NLPParams, NLPStructure, Weights
+from jaxplan.nlp.terms import STATIC_PRIORITY
 from jaxplan.predict import predict_arrays, quintic_terms
 from jaxplan.pytree import tree_where
 from jaxplan.trajectory import Trajectory, compose_matrix
@@ -542,8 +543,10 @@ def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, 
                    static: StaticRows | None = None):
     """How deep each plan comes into the others' planning distances, or into the static
     rows (obstacles, workspace faces) by its radius, over the next CHECK_HORIZON_S: max
-    over CHECK_SAMPLES instants, others and rows of rho_ij - d_ij and r_i - sd (m), 0
-    when clear.  plans: (M,) trajectories starting now (holding or coasting after their
+    over CHECK_SAMPLES instants, others and rows of rho_ij - d_ij and P (r_i - sd) (m;
+    P = :data:`jaxplan.nlp.terms.STATIC_PRIORITY`: a plan into an obstacle is worse than
+    one as deep into a robot's planning distance, which that robot avoids too), 0 when
+    clear.  plans: (M,) trajectories starting now (holding or coasting after their
     end); others: (M, Mo) predictions; radius (M,); other_radius, mask (M, Mo)."""
     t = jnp.arange(1, CHECK_SAMPLES + 1) * (CHECK_HORIZON_S / CHECK_SAMPLES)
     me = plans.evaluate(t[:, None])  # (K, M, N)
@@ -556,7 +559,7 @@ def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, 
         sd = signed_distance(static.kind, static.center, static.half, static.radius, me,
                              xp=jnp)  # (K, M, R)
         pen_s = jnp.where(static.mask & jnp.isfinite(sd), radius[None, :, None] - sd, 0.0)
-        worst = jnp.maximum(worst, jnp.max(pen_s, axis=(0, 2), initial=0.0))
+        worst = jnp.maximum(worst, STATIC_PRIORITY * jnp.max(pen_s, axis=(0, 2), initial=0.0))
     return worst
 
 

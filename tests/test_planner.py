@@ -201,6 +201,46 @@ def test_plan_violation_matches_a_direct_computation():
     assert got[1] == 0.0
 
 
+def test_plan_violation_weighs_an_obstacle_above_a_robot():
+    """Depth into an obstacle counts STATIC_PRIORITY times depth into a robot's planning
+    distance: of two plans, one 3 cm into a robot's and one 2 cm into a sphere's, the
+    robot's is the lesser (an obstacle does not make way; random_obstacles seed 9 flew
+    a best-effort plan 2.3 cm into a sphere when both weighed the same)."""
+    from jaxplan.nlp.terms import STATIC_PRIORITY
+    from jaxplan.planner import plan_violation, pick_fallback
+    from jaxplan.world import World, static_rows
+    assert STATIC_PRIORITY > 1.5
+    rad = jnp.asarray([0.3, 0.3])
+    world = World.default(3).with_obstacles(
+        [{"kind": "sphere", "center": [0.0, 0.0, 5.0], "radius": 1.0}])
+    static = jax.tree.map(jnp.asarray, static_rows(world))
+    # robot 0 holds 2 cm inside its planning radius of the sphere, robot 1 3 cm inside
+    # robot 0's planning distance (0.3 + 0.3), both well above the ground
+    pts = np.array([[0.0, 0.0, 5.0 + 1.0 + 0.28], [20.0, 0.0, 5.0]])
+    plans = Trajectory.hold(jnp.asarray(pts), 5, 1)
+    seen = np.array([[[0.0, 0, 0], [40.0, 0, 5.0]], [[20.57, 0.0, 5.0], [0.0, 0, 0]]])
+    others = Trajectory.hold(jnp.asarray(seen), 5, 1)
+    mask = jnp.asarray([[False, True], [True, False]])
+    orad = jnp.full((2, 2), 0.3)
+    got = np.asarray(plan_violation(plans, others, rad, orad, mask, static))
+    np.testing.assert_allclose(got, [STATIC_PRIORITY * 0.02, 0.03], atol=1e-5)  # sqrt smoothing
+    # as three fallbacks of one robot: the plan into the robot wins
+    code = pick_fallback(jnp.asarray(got[0]), jnp.asarray(got[1]), jnp.asarray(np.inf))
+    assert int(code) == KEPT_PREVIOUS
+
+
+def test_static_constraint_grows_faster_than_a_pairs():
+    """Near its boundary a static row's g grows STATIC_PRIORITY times as fast per metre
+    as a pair's d^2 - rho^2 with rho = 2 r (jaxplan.nlp.terms.static_scale)."""
+    from jaxplan.nlp.terms import STATIC_PRIORITY, static_scale
+
+    class P:  # noqa: D401 - the one field static_scale reads
+        radius = jnp.asarray(0.35)
+    rho, eps = 0.7, 1e-6
+    pair_rate = ((rho + eps) ** 2 - rho**2) / eps
+    np.testing.assert_allclose(float(static_scale(P)), STATIC_PRIORITY * pair_rate, rtol=1e-5)
+
+
 def test_coast_rows_only_where_a_free_end_can_occur():
     import tomllib
 

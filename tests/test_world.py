@@ -13,6 +13,7 @@ from jaxplan import experiment as ex
 from jaxplan import nlp, planner, solve
 from jaxplan.config import ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
+from jaxplan.nlp.terms import STATIC_PRIORITY
 from jaxplan.testing import limits, random_problem, weights
 from jaxplan.trajectory import Trajectory
 from jaxplan.world import (
@@ -145,7 +146,7 @@ def test_static_rows_structured_derivatives_match_autodiff(st, rest):
     np.testing.assert_allclose(gg.static, c.static, rtol=1e-12, atol=1e-12)
     if st.collision_constraints:
         assert int(jnp.sum(c.static < 0)) > 0  # the straight line goes through obstacles
-        # the constraint is 2 r (sd - r) at the sampled positions
+        # the constraint is 4 P r (sd - r) at the sampled positions (P: STATIC_PRIORITY)
         traj = nlp.to_trajectory(x, p, st)
         s, off, _, _ = nlp.collision_rows(p, st)
         T = traj.duration
@@ -155,7 +156,8 @@ def test_static_rows_structured_derivatives_match_autodiff(st, rest):
         r = float(p.radius)
         # a row the start already lacks clearance to allows that much (static_allowance)
         sd0 = signed_distance(*(np.asarray(a) for a in rows[:4]), np.asarray(p.p0)[None])[0]
-        want = np.where(np.asarray(rows.mask), 2 * r * (sd - r - np.minimum(sd0 - r, 0.0)), 1.0)
+        scale = 4 * STATIC_PRIORITY * r
+        want = np.where(np.asarray(rows.mask), scale * (sd - r - np.minimum(sd0 - r, 0.0)), 1.0)
         np.testing.assert_allclose(np.asarray(c.static)[:st.n_collision_samples], want,
                                    atol=1e-9)
 

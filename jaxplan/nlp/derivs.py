@@ -30,6 +30,7 @@ from jaxplan.nlp.terms import (
     static_allowance,
     static_gap,
     static_local,
+    static_scale,
 )
 from jaxplan.nlp.types import DIST_EPS2, Multipliers
 from jaxplan.trajectory import Trajectory
@@ -412,7 +413,7 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     p = (bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)).T  # (K, N)
     st = params.static
     wt = params.weights
-    r = params.radius
+    scale = static_scale(params)
     lam = mult.static if mult is not None else None
     cons = structure.collision_constraints and lam is not None
     allow = static_allowance(params)
@@ -426,7 +427,7 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     def alt(pk, lk, ok):
         if not cons:
             return jnp.zeros((), p.dtype)
-        g = 2.0 * r * (static_gap(pk, params_s) - allow)
+        g = scale * (static_gap(pk, params_s) - allow)
         return jnp.sum(jnp.where(st.mask & ok, al_term(g, lk, mu), 0.0))
 
     bv, bg, bH = jax.vmap(lambda pk, wk: _value_grad_hessian(bar, pk, wk))(p, w)
@@ -441,7 +442,7 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     gs = jnp.ones((structure.n_col, structure.n_static), z.dtype)
     if with_g and structure.collision_constraints:
         gap = jax.vmap(lambda pk: static_gap(pk, params))(p) - allow
-        gs = jnp.where(st.mask[None, :] & on[:, None], 2.0 * r * gap, 1.0)
+        gs = jnp.where(st.mask[None, :] & on[:, None], scale * gap, 1.0)
     return v, local, gs
 
 
