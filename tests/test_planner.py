@@ -207,7 +207,7 @@ def test_plan_violation_weighs_an_obstacle_above_a_robot():
     robot's is the lesser (an obstacle does not make way; random_obstacles seed 9 flew
     a best-effort plan 2.3 cm into a sphere when both weighed the same)."""
     from jaxplan.nlp.terms import STATIC_PRIORITY
-    from jaxplan.planner import plan_violation, pick_fallback
+    from jaxplan.planner import pick_fallback, plan_violation
     from jaxplan.world import World, static_rows
     assert STATIC_PRIORITY > 1.5
     rad = jnp.asarray([0.3, 0.3])

@@ -355,8 +355,8 @@ def constraints(x, params: NLPParams, structure: NLPStructure):
     Collision: d^2 - rho^2 (m^2) at the collision samples (masked pairs: +1; ones of
     shape (Kc, Mo) when the mode has no collision constraints).  Limits: 1 - |x^(k)|^2 /
     tau_k^2 at the hard-limit samples (+1 when ``hard_limits`` is off).  Static:
-    s (sd - r - a) (m^2, :func:`static_constraints`) of the obstacles and workspace faces at the same rows (+1 where
-    masked or off, and without collision constraints).
+    s (sd - r - a) (m^2, :func:`static_constraints`) of the obstacles and workspace
+    faces at the same rows (+1 where masked or off, and without collision constraints).
     """
     kind = kind_constants(params.rest, structure)
     return _constraints(x, params, structure, kind)

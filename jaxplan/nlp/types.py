@@ -66,7 +66,8 @@ class NLPStructure:
         n_static: static rows R (obstacles and workspace faces, :mod:`jaxplan.world`),
             padded to a fixed count; their terms sit at the same collision rows as the
             robots' (barrier in the barrier modes and "paper", AL constraints
-            4 P r (sd(p) - r) >= 0 in the constraint modes (P = STATIC_PRIORITY), coast rows included); 0 = none.
+            4 P r (sd(p) - r) >= 0 in the constraint modes, P = STATIC_PRIORITY, coast
+            rows included); 0 = none.
     """
 
     n_dim: int = 3
