@@ -26,6 +26,7 @@ from jaxplan.config import Config, build_scenario
 from jaxplan.deadlock import default_params as deadlock_params
 from jaxplan.deadlock import resolution_enabled, stall_summary
 from jaxplan.faults import FaultParams, no_faults
+from jaxplan.guide import GuideField, guide_enabled, guide_field
 from jaxplan.nlp import Limits, NLPStructure, Weights
 from jaxplan.planner import (
     ACCEPTED,
@@ -142,7 +143,18 @@ def task_of(config: Config, scenario: Scenario) -> Task:
         goal_tolerance=jnp.asarray(config.sim.goal_tolerance_m),
         speed_tolerance=jnp.asarray(config.sim.goal_speed_tolerance_mps),
         faults=fault_params(config, scenario.start.shape[0]),
+        guide=_guide(config, scenario),
     )
+
+
+def _guide(config: Config, scenario: Scenario):
+    """The scenario's guide field (jaxplan.guide) where [planner] guide turns it on."""
+    if not guide_enabled(config.planner.guide, scenario.world):
+        return None
+    g = guide_field(scenario.world, scenario.waypoints,
+                    np.asarray(scenario.radius) + config.planner.safety_margin_m,
+                    scenario.start)
+    return GuideField(*(jnp.asarray(a) for a in g))
 
 
 def fault_params(config: Config, M: int) -> FaultParams:

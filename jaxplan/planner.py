@@ -64,6 +64,7 @@ import numpy as np
 
 from jaxplan import deadlock as dl
 from jaxplan import solve
+from jaxplan.guide import guide_goals
 from jaxplan.nlp import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.nlp.terms import STATIC_PRIORITY
 from jaxplan.predict import predict_arrays, quintic_terms
@@ -281,7 +282,7 @@ def resample(traj: Trajectory, segments: int, degree: int) -> Trajectory:
 
 
 def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v, rest,
-           structure: PlannerStructure):
+           structure: PlannerStructure, guide=None):
     """One receding-horizon replan of the whole fleet: the others' predictions from the
     views (:func:`view_predictions`), the robots' NLPs (:func:`fleet_nlps`), their solve
     (:func:`solve_fleet`) and each robot's plan or fallback (:func:`choose_plans`).
@@ -291,13 +292,22 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
         previous replan time, i.e. ``fp.dt`` ago).  views: what each robot knows of the
         others.  p, v, a: (M, N) each robot's own measured state now.  goal_p, goal_v:
         (M, N) current goals; rest: (M,) bool fully defined end state.
-        structure: static PlannerStructure.
+        structure: static PlannerStructure.  guide: (value (M, *G), origin (N,),
+        spacing (N,)) the guide field of the current goals (:mod:`jaxplan.guide`) or
+        None: a robot whose line to its goal goes through an obstacle, and that does
+        not sidestep, plans to its guide point (a rest end) instead.
     Returns:
         (new PlanState with every plan starting now, ReplanInfo).
     """
     M = p.shape[0]
     preds, inflate, floor = view_predictions(fp, views)
     ds, stalled, side, goal_p, goal_v, rest = stall_step(fp, ps, views, p, goal_p, goal_v, rest)
+    if guide is not None and fp.static is not None:
+        point, use = guide_goals(*guide, fp.static, fp.radius, p, goal_p)
+        use = use & ~side & fp.robot_mask
+        goal_p = jnp.where(use[:, None], point, goal_p)
+        goal_v = jnp.where(use[:, None], 0.0, goal_v)
+        rest = rest | use
     params, goal_moved, idx, sidx, mult_prev = fleet_nlps(fp, ps, views, preds, inflate, floor,
                                                           p, v, a, goal_p, goal_v, rest,
                                                           structure)

@@ -33,6 +33,7 @@ import jax.numpy as jnp
 
 from jaxplan.deadlock import published_goals
 from jaxplan.faults import CommState, FaultParams, communicate, initial_comm
+from jaxplan.guide import GuideField
 from jaxplan.planner import (
     FleetParams,
     PlannerStructure,
@@ -63,7 +64,8 @@ class Task(NamedTuple):
 
     start: (M, N).  waypoints: (M, W, N).  rest: (M, W) bool (fully defined end state).
     goal_velocity: (M, W, N) (used where ``rest``).  goal_tolerance: () m.
-    speed_tolerance: () m/s.
+    speed_tolerance: () m/s.  guide: the way round the static world to each goal
+    (:class:`jaxplan.guide.GuideField`, value (W, M, *G)), or None: no guide.
     """
 
     start: jax.Array
@@ -73,6 +75,7 @@ class Task(NamedTuple):
     goal_tolerance: jax.Array
     speed_tolerance: jax.Array
     faults: FaultParams
+    guide: GuideField | None = None
 
 
 class RolloutState(NamedTuple):
@@ -108,6 +111,13 @@ class StepRecord(NamedTuple):
     wp: jax.Array
     info: ReplanInfo
     comm: jax.Array  # (3,) messages delivered, messages lost, oldest view age (s)
+
+
+def guide_now(task: Task, wp):
+    """The guide of the published waypoint wp for :func:`jaxplan.planner.replan`:
+    (value (M, *G), origin, spacing), or None without a guide."""
+    g = task.guide
+    return None if g is None else (g.value[wp], g.origin, g.spacing)
 
 
 def current_goals(task: Task, wp, reached):
@@ -155,7 +165,7 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     pub = published_goals(st.plans.deadlock, goal_p, goal_v, rest)
     comm, views, cstats = exchange(task, st, *pub, structure)
     plans, info = replan(fp, st.plans, views, st.p, st.v, st.a, goal_p, goal_v, rest,
-                         structure.planner)
+                         structure.planner, guide=guide_now(task, st.wp))
     plans = freeze(fp, task, st, plans, structure)
     plan = plans.plan
     p1, v1, a1 = plan.state_at(jnp.broadcast_to(dt, (M,)))

@@ -47,6 +47,7 @@ import numpy as np
 from jaxplan import scenarios
 from jaxplan.config import TUNABLE_WEIGHTS, Config, build_scenario
 from jaxplan.experiment import compute_metrics, fleet_params, stack_trees, structures, task_of
+from jaxplan.guide import guide_enabled
 from jaxplan.nlp import Weights
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
 from jaxplan.scenarios import Scenario
@@ -236,6 +237,9 @@ def pad_robots(fp, task: Task, m_pad: int):
         rest=cat(task.rest, True),
         goal_velocity=cat(task.goal_velocity, 0.0),
         faults=task.faults._replace(frozen=cat(task.faults.frozen, False)),
+        guide=None if task.guide is None else task.guide._replace(value=np.concatenate(
+            [np.asarray(task.guide.value),
+             np.zeros((W, extra) + np.shape(task.guide.value)[2:])], axis=1)),
     )
     lim = fp.limits
     fp = fp._replace(
@@ -453,6 +457,11 @@ class BatchRunner:
             r_pad = need
         elif r_pad < need:
             raise ValueError(f"r_pad = {r_pad} < {need} static rows of a world in the batch")
+        # one batch, one task tree: the guide for every run if a run of it needs one
+        if any(guide_enabled(c.planner.guide, built[(p.scenario, p.seed)].world)
+               for c, p in zip(configs, points, strict=True)):
+            configs = [c if c.planner.guide == "off" else dataclasses.replace(
+                c, planner=dataclasses.replace(c.planner, guide="on")) for c in configs]
         preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad)
                  for c, p in zip(configs, points, strict=True)]
         full = preps + [preps[-1]] * (batch - len(preps))

@@ -32,6 +32,7 @@ from jaxplan.fields import (
     show,
     string,
 )
+from jaxplan.guide import GUIDE_MODES
 from jaxplan.nlp import PLANNER_COLLISION_MODES
 from jaxplan.scenarios import GENERATOR_PARAMS
 
@@ -63,6 +64,8 @@ DEFAULT_DEADLOCK = "auto"                # "auto" | "sidestep" | "off" (detectio
 # auto: the sidestep for planar fleets (without it they do not arrive: docs/RESULTS.md),
 # off in 3-D (on the tiny 3-D swap the sidestep made the makespan 20% longer and the peak
 # speed 1.057 v_max: 5.34 s and 1.036 without); see README, "Known limits"
+# the way round a wall (jaxplan/guide.py): "auto" (on in a world with obstacles) | "on" | "off"
+DEFAULT_GUIDE = "auto"
 DEFAULT_STALL_WINDOW_S = 2.0             # s without progress before a robot is stalled
 DEFAULT_STALL_PROGRESS_M = 0.2           # m: less progress than this over the window
 DEFAULT_STALL_NEAR_M = 1.0               # m of clearance to another robot that counts as near
@@ -144,6 +147,9 @@ class PlannerConfig:
     deadlock "auto" | "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,
     sidestep_hold_s, sidestep_step_m, sidestep_angle_deg: stall detection (always on)
     and the sidestep that resolves a stall (jaxplan/deadlock.py).
+    guide "auto" | "on" | "off": a robot whose straight line to its goal passes through
+    an obstacle plans to a point of the shortest way round instead (jaxplan/guide.py);
+    auto: on in a world with obstacles.
     """
 
     replan_hz: number(gt=0.0) = DEFAULT_REPLAN_HZ
@@ -171,6 +177,7 @@ class PlannerConfig:
     sidestep_hold_s: number(gt=0.0, le=1e4) = DEFAULT_SIDESTEP_HOLD_S
     sidestep_step_m: number(gt=0.0, le=1e3) = DEFAULT_SIDESTEP_STEP_M
     sidestep_angle_deg: number(ge=0.0, le=90.0) = DEFAULT_SIDESTEP_ANGLE_DEG
+    guide: string(one_of(GUIDE_MODES)) = DEFAULT_GUIDE
 
 
 @dataclass(frozen=True, config=SECTION_CONFIG)

@@ -40,6 +40,7 @@ from jaxplan.rollout import (
     current_goals,
     executed_pieces,
     goal_update,
+    guide_now,
     initial_state,
 )
 from jaxplan.sim import fleet as sf
@@ -75,7 +76,8 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     goal_p, goal_v, rest = current_goals(task, st.wp, st.reached)
     # the others are seen as measured
     views = fresh_views(pm, vm, am, *published_goals(st.plans.deadlock, goal_p, goal_v, rest))
-    plans, info = replan(fp, st.plans, views, p, v, a, goal_p, goal_v, rest, structure.planner)
+    plans, info = replan(fp, st.plans, views, p, v, a, goal_p, goal_v, rest, structure.planner,
+                         guide=guide_now(task, st.wp))
     new_sim, prec = sf.simulate_period(sim, sim_state, plans.plan, 0.0, period_s)
     t1 = sf.sim_time(sim, new_sim)
     pt0, pt1, pc = executed_pieces(plans.plan, t, t1 - t)
