@@ -16,6 +16,7 @@ from jaxplan.guide import (
     guide_enabled,
     guide_field,
     guide_goals,
+    grid_distance,
     segment_clearance,
 )
 from jaxplan.world import StaticRows, World, obstacle_arrays, signed_distance, static_rows
@@ -118,23 +119,26 @@ def test_field_is_the_shortest_way_round():
                     jnp.asarray(p)))
     d = np.linalg.norm(p - goal)
     assert d - 2 * cell < got < 1.083 * d + 2 * cell
+    # where nothing is in the way the field is the grid's free-space path length
+    assert abs(got - float(grid_distance(jnp.asarray(p - goal)))) < cell
 
 
 def test_guide_point_leads_to_the_opening():
     """A robot behind the wall takes a guide point that it sees clear by its radius,
-    that lies on the way round (nearer the goal by the field), and below the wall's
-    end; one that sees its goal does not use the guide."""
+    on the way round, down towards the opening; one that sees its goal does not use
+    the guide, nor one whose line passes through a small pillar (a short detour)."""
     r = 0.3
-    w = _world(WALL)
-    goals = np.array([[-3.0, 3.0], [3.0, 0.0]])
-    starts = np.array([[2.0, 3.5], [2.0, 3.5]])
-    f = guide_field(w, goals[:, None], np.array([r, r]), starts=starts)
+    w = _world(WALL + [dict(kind="cylinder", center=[3.0, 1.5], radius=0.3)])
+    goals = np.array([[-3.0, 3.0], [3.0, 0.0], [1.0, 1.5]])
+    starts = np.array([[2.0, 3.5], [2.0, 3.5], [4.5, 1.5]])
+    f = guide_field(w, goals[:, None], np.full(3, r), starts=starts)
     rows = _rows(w)
+    assert float(segment_clearance(rows, jnp.asarray(starts[2]), jnp.asarray(goals[2]))) < 0
     point, use = jax.jit(guide_goals)(jnp.asarray(f.value[0]), jnp.asarray(f.origin),
-                                      jnp.asarray(f.spacing), rows, jnp.asarray([r, r]),
+                                      jnp.asarray(f.spacing), rows, jnp.full(3, r),
                                       jnp.asarray(starts), jnp.asarray(goals))
     point, use = np.asarray(point), np.asarray(use)
-    assert use.tolist() == [True, False]
+    assert use.tolist() == [True, False, False]
     q = point[0]
     assert float(segment_clearance(rows, jnp.asarray(starts[0]), jnp.asarray(q))) >= r
     assert q[1] < 2.0 and np.linalg.norm(q - starts[0]) > 1.0  # down towards the opening
