@@ -12,24 +12,24 @@ once per run, on the host:
 a grid over the workspace (its finite bounds, else the starts', goals' and obstacles'
 box grown by GUIDE_MARGIN_M, in a grid of GUIDE_CELLS nodes per axis, fixed so that
 every run of a dimension has one shape, and one spacing on every axis), and for each
-waypoint and robot the length of the shortest grid path from every node to the robot's goal (Dijkstra, :mod:`scipy.sparse.csgraph`,
-on the 8- or 26-neighbour grid; an edge with an end whose clearance to the static rows
-is below the robot's planning radius costs BLOCKED_COST times its length, so every node
-has a finite value and the field leads out of an obstacle too).
+waypoint and robot the length of the shortest grid path from every node to the robot's
+goal (Dijkstra, :mod:`scipy.sparse.csgraph`, on the 8- or 26-neighbour grid; an edge
+with an end whose clearance to the static rows is below the robot's planning radius
+costs BLOCKED_COST times its length, so every node has a finite value and the field
+leads out of an obstacle too).
 
 Every replan, in the planner (:func:`guide_goals`, jit-able): a robot whose straight line
 to its goal passes through an obstacle (the segment's least clearance sd < 0,
 :func:`segment_clearance`: the body itself, not the margin round it, which the NLP
 handles) and whose way round is more than DETOUR_M longer than the grid path in free
-space (:func:`grid_distance`)
-plans instead to a *guide point*: it follows the field's descent (the multilinear
-interpolation's gradient, GUIDE_STEPS steps of GUIDE_STEP_M) from where it is, and takes
-the farthest point of that path that it sees with its planning radius clear, else the
-farthest it sees at all, else the first.  It plans to stop
-there (a rest end, as a sidestep sub-goal); the point moves on with it every replan.  A
-robot that sees its goal plans to it as before: in a world without obstacles (every
-paper scenario) nothing changes, and the guide is not even built ([planner] guide =
-"auto").
+space (:func:`grid_distance`) plans instead to a *guide point*: it follows the field's
+descent (the multilinear interpolation's gradient, GUIDE_STEPS steps of GUIDE_STEP_M)
+from where it is, and takes the farthest of the points 1, 2, 3, 4 m down that path that
+it sees with its planning radius clear, else the farthest it sees at all, else the
+first step.  It plans to stop there (a rest end, as a sidestep sub-goal); the point
+moves on with it every replan.  A robot that sees its goal plans to it as before: in a
+world without obstacles (every paper scenario) nothing changes, and the guide is not
+even built ([planner] guide = "auto").
 """
 
 from __future__ import annotations
@@ -57,6 +57,7 @@ SEGMENT_ITERS = 40  # golden-section steps of a segment's clearance (0.618^40 ~ 
 DETOUR_M = 1.0
 GUIDE_STEPS = 16  # descent steps from the robot
 GUIDE_STEP_M = 0.25  # m per step (so the guide point is at most 4 m ahead)
+GUIDE_EVERY = 4  # candidate guide points: every 4th step (1, 2, 3, 4 m down the field)
 
 
 class GuideField(NamedTuple):
@@ -202,13 +203,18 @@ def grid_distance(d):
 def guide_goals(value, origin, spacing, static: StaticRows, radius, p, goal_p):
     """Each robot's guide point and whether it uses it (module doc).  value: (M, *G) the
     fields of the current waypoint; radius (M,) planning radii; p, goal_p (M, N).
-    Returns (point (M, N), use (M,) bool)."""
-    def one(F, r, p, g):
+    Returns (point (M, N), use (M,) bool).  The descent and the views are computed only
+    in a replan where some robot uses the guide (a fleet-wide cond): most replans pay
+    one segment's clearance per robot."""
+    val = lambda F, q: field_value(F, origin, spacing, q)  # noqa: E731
+
+    def needs(F, p, g):
         g = jnp.where(jnp.isfinite(g), g, p)
-        val = lambda q: field_value(F, origin, spacing, q)  # noqa: E731
-        detour = val(p) - grid_distance(g - p)
-        blocked = (segment_clearance(static, p, g) < 0.0) & (detour > DETOUR_M)
-        grad = jax.grad(val)
+        detour = val(F, p) - grid_distance(g - p)
+        return (segment_clearance(static, p, g) < 0.0) & (detour > DETOUR_M)
+
+    def point(F, r, p):
+        grad = jax.grad(lambda q: val(F, q))
 
         def step(q, _):
             d = grad(q)
@@ -217,12 +223,14 @@ def guide_goals(value, origin, spacing, static: StaticRows, radius, p, goal_p):
             return q, q
 
         _, path = jax.lax.scan(step, p, None, length=GUIDE_STEPS)  # (S, N)
-        seen = jax.vmap(lambda q: segment_clearance(static, p, q))(path)  # (S,)
-        k_clear = jnp.max(jnp.where(seen >= r, jnp.arange(GUIDE_STEPS), -1))
-        k_any = jnp.max(jnp.where(seen >= 0.0, jnp.arange(GUIDE_STEPS), 0))
-        k = jnp.where(k_clear >= 0, k_clear, k_any)
-        point = path[k]
-        ok = jnp.all(jnp.isfinite(point))
-        return jnp.where(ok, point, p), blocked & ok
+        cand = path[GUIDE_EVERY - 1::GUIDE_EVERY]  # (C, N)
+        seen = jax.vmap(lambda q: segment_clearance(static, p, q))(cand)  # (C,)
+        k = jnp.arange(cand.shape[0])
+        k_clear = jnp.max(jnp.where(seen >= r, k, -1))
+        k_any = jnp.max(jnp.where(seen >= 0.0, k, -1))
+        q = jnp.where(k_clear >= 0, cand[k_clear], jnp.where(k_any >= 0, cand[k_any], path[0]))
+        return jnp.where(jnp.all(jnp.isfinite(q)), q, p)
 
-    return jax.vmap(one)(value, radius, p, goal_p)
+    use = jax.vmap(needs)(value, p, goal_p)
+    pts = jax.lax.cond(jnp.any(use), lambda: jax.vmap(point)(value, radius, p), lambda: p)
+    return pts, use

@@ -13,10 +13,10 @@ import jaxplan  # noqa: F401  (float64)
 from jaxplan import experiment as ex
 from jaxplan.config import parse_config
 from jaxplan.guide import (
+    grid_distance,
     guide_enabled,
     guide_field,
     guide_goals,
-    grid_distance,
     segment_clearance,
 )
 from jaxplan.world import StaticRows, World, obstacle_arrays, signed_distance, static_rows
