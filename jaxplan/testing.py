@@ -139,3 +139,21 @@ def antipodal(M: int, radius_m: float, rng, N: int = 3):
     return pos[:, :N], goals[:, :N]
 
 
+
+
+def random_obstacles(rng, repeats: int, spread: float, half_min: float,
+                     radius_min: float) -> list[dict]:
+    """``repeats`` each of a sphere, a box and a cylinder (3-D, config dicts as
+    ``[[obstacles]]`` holds them): centres uniform in [-spread, spread]^3, box half
+    extents in [half_min, 0.8], radii in [radius_min, 0.8], half heights in [0.3, 1.5]."""
+    obs = []
+    for kind in ["sphere", "box", "cylinder"] * repeats:
+        o = dict(kind=kind, center=rng.uniform(-spread, spread, 3))
+        if kind == "box":
+            o["half_extents"] = rng.uniform(half_min, 0.8, 3)
+        else:
+            o["radius"] = rng.uniform(radius_min, 0.8)
+        if kind == "cylinder":
+            o["half_height"] = rng.uniform(0.3, 1.5)
+        obs.append(o)
+    return obs

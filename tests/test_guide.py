@@ -19,6 +19,7 @@ from jaxplan.guide import (
     guide_goals,
     segment_clearance,
 )
+from jaxplan.testing import random_obstacles
 from jaxplan.world import StaticRows, World, obstacle_arrays, signed_distance, static_rows
 
 # a wall at x = 0 (0.2 m thick) from y = 0.75 to y = 5, in the plane, the workspace
@@ -44,16 +45,7 @@ def test_segment_clearance_matches_dense_sampling():
     a sample step (never above it: the search is exact for convex rows), thin boxes
     included, which a coarse sampling would step over."""
     rng = np.random.default_rng(3)
-    obs = []
-    for kind in ["sphere", "box", "cylinder"] * 3:
-        o = dict(kind=kind, center=rng.uniform(-4, 4, 3))
-        if kind == "box":
-            o["half_extents"] = rng.uniform(0.02, 0.8, 3)
-        else:
-            o["radius"] = rng.uniform(0.1, 0.8)
-        if kind == "cylinder":
-            o["half_height"] = rng.uniform(0.3, 1.5)
-        obs.append(o)
+    obs = random_obstacles(rng, 3, 4.0, 0.02, 0.1)
     w = _world(obs, np.array([-6.0, -np.inf, -1.0]), np.array([6.0, 6.0, np.inf]))
     rows = static_rows(w)
     a, b = rng.uniform(-5, 5, (64, 3)), rng.uniform(-5, 5, (64, 3))

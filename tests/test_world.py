@@ -14,7 +14,7 @@ from jaxplan import nlp, planner, solve
 from jaxplan.config import ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
 from jaxplan.nlp.terms import STATIC_PRIORITY
-from jaxplan.testing import limits, random_problem, weights
+from jaxplan.testing import limits, random_obstacles, random_problem, weights
 from jaxplan.trajectory import Trajectory
 from jaxplan.world import (
     BOX,
@@ -323,16 +323,7 @@ def test_nearest_static_rows_match_brute_force():
     """The K rows of least clearance sd(p) - r at each robot's position, nearest first,
     masked padding never picked: against numpy on a world of every kind and its faces."""
     rng = np.random.default_rng(4)
-    obs = []
-    for kind in ["sphere", "box", "cylinder"] * 4:
-        o = dict(kind=kind, center=rng.uniform(-5, 5, 3))
-        if kind == "box":
-            o["half_extents"] = rng.uniform(0.1, 0.8, 3)
-        else:
-            o["radius"] = rng.uniform(0.2, 0.8)
-        if kind == "cylinder":
-            o["half_height"] = rng.uniform(0.3, 1.5)
-        obs.append(o)
+    obs = random_obstacles(rng, 4, 5.0, 0.1, 0.2)
     w = World(np.array([-6.0, -np.inf, -1.0]), np.array([6.0, 7.0, np.inf]),
               *obstacle_arrays(obs, 3))
     rows = static_rows(w, 20)  # 12 obstacles, 4 faces, 4 masked
