@@ -29,7 +29,9 @@ settings: ``--seeds`` seeds each under the ideal backend (a sweep per world), an
 under both backends through `jaxplan run` (the replan times, and the mjx contacts).
 
 ``deadlock``: stalls with and without their resolution (``[planner] deadlock =
-"sidestep" | "off"``, jaxplan/deadlock.py) on the fleets of experiments/deadlock/
+"auto" | "off"``, jaxplan/deadlock.py; "auto", the default, sidesteps at once in the
+plane and after ``sidestep_wait_3d_s`` in 3-D; ``--resolutions sidestep`` adds the
+sidestep without the 3-D wait) on the fleets of experiments/deadlock/
 (planar antipodal circles of 4 to 24 ground robots, exactly symmetric and with a 2 deg
 random angular offset; planar random transitions of 10 and 20; 3-D circles that start in
 one horizontal plane), the two benchmark fleets, and the benchmark fleets with robot 0
@@ -105,7 +107,7 @@ DEADLOCK_CELLS = [
     ("random_box_20, robot 0 frozen", FLEETS["random_box_20"], {}, 20,
      FAULTS["one frozen robot"]),
 ]
-RESOLUTIONS = ("off", "sidestep")
+RESOLUTIONS = ("off", "auto", "sidestep")
 WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles")
 STUDIES = ("paper", "collision", "faults", "deadlock", "worlds")
 
@@ -138,7 +140,8 @@ DEFAULT_NOTES = {
     "faults": "Each fault of `[faults]` alone, default settings. Success excepts the frozen "
               "robot; a collision with it still counts.",
     "deadlock": "Each fleet without (`deadlock = \"off\"`: detection only) and with the "
-                "sidestep. Stalls: stall onsets over all runs; stalled: robot-"
+                "sidestep (`\"auto\"`, the default: at once in the plane, after 4 s more "
+                "of the stall in 3-D). Stalls: stall onsets over all runs; stalled: robot-"
                 "seconds stalled; T/bound: makespan over max_i(D_i / v_max + v_max / a_max), "
                 "median and max over the successful runs; peak speed: the largest of any run.",
     "worlds": "Success also requires no robot body inside an obstacle or outside the "
@@ -319,7 +322,7 @@ def _deadlock_study(a) -> tuple[str, dict]:
     for key in keys:
         r = results[key]
         name, res = key.split(" | ")
-        shown = f"**{res}**" if res == "sidestep" else res
+        shown = f"**{res}**" if res == "auto" else res
         lines.append(f"| {name} | {shown} | {r['runs']} | {100 * r['success_rate']:.0f}% | "
                      f"{r['runs_with_collisions']} | {r['min_separation_ratio']:.3f} | "
                      f"{f(r['makespan_median_s'])} | {f(r['over_bound_median'])} / "
@@ -506,7 +509,7 @@ def main(argv=None) -> int:
                     help="runs per compiled batch (default: jaxplan.sweep's, one per CPU device)")
     ap.add_argument("--fleets", nargs="+", choices=tuple(FLEETS), default=tuple(FLEETS))
     ap.add_argument("--resolutions", nargs="+", choices=RESOLUTIONS,
-                    default=("sidestep", "off"), help="deadlock: the resolutions to run")
+                    default=("auto", "off"), help="deadlock: the resolutions to run")
     ap.add_argument("--off-seeds", type=int, default=None,
                     help="deadlock: at most this many seeds for the cells without the "
                          "resolution (the baseline)")

@@ -23,8 +23,13 @@ from jaxplan import metrics as mt
 from jaxplan import solve
 from jaxplan import world_metrics as wm
 from jaxplan.config import Config, build_scenario
+from jaxplan.deadlock import (
+    announces_plan_ends,
+    resolution_enabled,
+    sidestep_wait,
+    stall_summary,
+)
 from jaxplan.deadlock import default_params as deadlock_params
-from jaxplan.deadlock import resolution_enabled, stall_summary
 from jaxplan.faults import FaultParams, no_faults
 from jaxplan.guide import GuideField, guide_enabled, guide_field
 from jaxplan.nlp import Limits, NLPStructure, Weights
@@ -122,7 +127,9 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
         deadlock=deadlock_params(
             enabled=resolution_enabled(pc.deadlock, scenario.dim), window=pc.stall_window_s,
             progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
-            step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg),
+            step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg,
+            wait=sidestep_wait(pc.deadlock, scenario.dim, pc.sidestep_wait_3d_s),
+            announce=announces_plan_ends(pc.deadlock, scenario.dim)),
     )
 
 

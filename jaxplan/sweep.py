@@ -193,7 +193,10 @@ _FREE_TABLES = ("sweep", "tune", "name", "description")
 # keys added later whose default changed what a run does: a config.toml without one was
 # written by a version that behaved as this value (so resuming it under the new default
 # is a different config, not the same one)
-_LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off"}
+# (a 3-D fleet under "auto" then never sidestepped: 1e4 s, the longest wait, stands for
+# that, so that such a directory is refused rather than resumed under the new rule)
+_LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off",
+                  ("planner", "sidestep_wait_3d_s"): 1e4}
 
 
 def _guard_config(out: Path, config: Config) -> None:

@@ -425,8 +425,10 @@ def _best_toml(config: Config, best: dict, n_trials: int) -> str:
 # ------------------------------------------------------------------------ held out
 
 HOLDOUT_COLUMNS = ("setting", "scenario", "seed", "success", "collisions",
-                   "min_separation_ratio", "makespan_s", "mean_time_to_goal_s",
-                   "reached_frac", "peak_speed_ratio", "converged_frac", "error")
+                   "obstacle_collisions", "workspace_violations", "min_separation_ratio",
+                   "min_obstacle_clearance_m", "min_workspace_clearance_m", "makespan_s",
+                   "makespan_over_bound", "mean_time_to_goal_s", "reached_frac",
+                   "peak_speed_ratio", "stalls", "converged_frac", "error")
 
 
 def _holdout(config: Config, runner: _Runner, labels, best: dict, out: Path,

@@ -256,22 +256,48 @@ def test_ground_robots_and_the_antipodal_circle():
             "kind": "antipodal_circle", "count": 2, "vehicles": ["ground"]}})
 
 
-def test_auto_sidesteps_in_planar_fleets_only():
+def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
     from jaxplan.config import build_scenario, parse_config
     from jaxplan.experiment import fleet_params
 
-    assert dl.resolution_enabled("auto", 2) and not dl.resolution_enabled("auto", 3)
+    assert dl.resolution_enabled("auto", 2) and dl.resolution_enabled("auto", 3)
     assert dl.resolution_enabled("sidestep", 3) and not dl.resolution_enabled("off", 2)
-    with pytest.raises(ValueError, match="yield"):
-        dl.resolution_enabled("yield", 2)
-    for planner, dim, on in (({}, 2, True), ({}, 3, False), ({"deadlock": "off"}, 2, False),
-                             ({"deadlock": "sidestep"}, 3, True)):
+    assert dl.sidestep_wait("auto", 3, 4.0) == 4.0 and dl.sidestep_wait("auto", 2, 4.0) == 0
+    assert dl.sidestep_wait("sidestep", 3, 4.0) == 0.0
+    assert dl.announces_plan_ends("auto", 2) and not dl.announces_plan_ends("auto", 3)
+    assert dl.announces_plan_ends("sidestep", 3) and not dl.announces_plan_ends("off", 2)
+    for bad in (dl.resolution_enabled, lambda r, d: dl.sidestep_wait(r, d, 1.0),
+                dl.announces_plan_ends):
+        with pytest.raises(ValueError, match="yield"):
+            bad("yield", 2)
+    for planner, dim, on, wait in (({}, 2, True, 0.0), ({}, 3, True, 4.0),
+                                   ({"sidestep_wait_3d_s": 7.5}, 3, True, 7.5),
+                                   ({"deadlock": "off"}, 2, False, 0.0),
+                                   ({"deadlock": "sidestep"}, 3, True, 0.0)):
         sc = {"kind": "antipodal_circle", "count": 2, "dim": dim}
         if dim == 2:
             sc["vehicles"] = ["ground"]
         cfg = parse_config({"planner": planner, "scenario": sc})
         assert cfg.planner.deadlock == planner.get("deadlock", "auto")
-        assert bool(fleet_params(cfg, build_scenario(cfg)).deadlock.enabled) is on
+        prm = fleet_params(cfg, build_scenario(cfg)).deadlock
+        assert bool(prm.enabled) is on and float(prm.wait) == wait
+        # the plan ends are broadcast with the sidestep, but not in 3-D under auto
+        assert bool(prm.announce) is (on and (dim == 2 or "deadlock" in planner))
+
+
+def test_a_robot_sidesteps_after_the_wait_and_is_stalled_meanwhile():
+    # one robot standing 3 m short of its goal with another near: stalled from 2 s on;
+    # with a 1 s wait it sidesteps from 3 s on, at once without one
+    K = 30
+    pos = np.zeros((K, 1, 2))
+    near = np.ones((K, 1), bool)
+    t = DT * np.arange(K)
+    for wait, start in ((0.0, 2.0), (1.0, 3.0)):
+        prm = dl.default_params(enabled=True, hold=10.0, wait=wait)
+        stalled, side, _ = _history(pos, [[3.0, 0.0]], near, prm)
+        assert t[int(np.argmax(stalled[:, 0]))] == pytest.approx(2.0)
+        assert t[int(np.argmax(side[:, 0]))] == pytest.approx(start)
+        assert not side[t < start - 1e-9, 0].any() and side[t >= start - 1e-9, 0].all()
 
 
 def test_a_robot_broadcasts_the_end_of_the_plan_it_flies():
@@ -299,3 +325,7 @@ def test_a_robot_broadcasts_the_end_of_the_plan_it_flies():
     np.testing.assert_array_equal(dl.published_goals(ds1, new, gv, prest)[0][1], [0, 6])
     ds_off = dl.broadcast(ds, off, planned, gv, prest, stop, braking, kept)
     np.testing.assert_array_equal(dl.published_goals(ds_off, goal, gv, prest)[0], goal)
+    # the sidestep without the plan ends (a 3-D fleet under "auto"): the goals too
+    quiet = dl.default_params(enabled=True, announce=False)
+    ds_q = dl.broadcast(ds, quiet, planned, gv, prest, stop, braking, kept)
+    np.testing.assert_array_equal(dl.published_goals(ds_q, goal, gv, prest)[0], goal)

@@ -165,6 +165,12 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
         _guard_config(tmp_path, cfg)
     _guard_config(tmp_path, dataclasses.replace(
         cfg, planner=dataclasses.replace(cfg.planner, coast_samples=0)))  # same: accepted
+    # nor one written before 3-D fleets sidestepped under "auto" (sidestep_wait_3d_s)
+    doc["planner"]["coast_samples"] = cfg.planner.coast_samples
+    doc["planner"].pop("sidestep_wait_3d_s")
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    with pytest.raises(SweepError, match="different config.*planner"):
+        _guard_config(tmp_path, cfg)
     doc["planner"]["no_such_key"] = 1
     (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
     with pytest.raises(SweepError, match="not a config this version reads"):

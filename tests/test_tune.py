@@ -241,6 +241,12 @@ def test_outputs_best_snippet_holdout_and_figures(interrupted_and_resumed):
     with open(out / "holdout.csv", newline="") as f:
         hold = list(csv.DictReader(f))
     assert [(r["setting"], r["seed"]) for r in hold] == [("best", "1"), ("defaults", "1")]
+    # the world's checks beside the robots' (a run can fail on either)
+    from jaxplan.tune import HOLDOUT_COLUMNS
+
+    assert list(hold[0]) == list(HOLDOUT_COLUMNS)
+    for r in hold:
+        assert r["workspace_violations"] == "0" and float(r["min_workspace_clearance_m"]) > 0
     # the best weights held out (seed 1, the same fleet) run as they trained
     assert res.holdout["best"]["median_makespan_s"] == pytest.approx(
         best["stats"]["median_makespan_s"], rel=1e-9)

@@ -61,9 +61,10 @@ DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's co
 MAX_COAST_SAMPLES = 256
 # stalls and their resolution (jaxplan/deadlock.py)
 DEFAULT_DEADLOCK = "auto"                # "auto" | "sidestep" | "off" (detection runs either way);
-# auto: the sidestep for planar fleets (without it they do not arrive: docs/RESULTS.md),
-# off in 3-D (on the tiny 3-D swap the sidestep made the makespan 20% longer and the peak
-# speed 1.057 v_max: 5.34 s and 1.036 without); see README, "Known limits"
+# auto: the sidestep, at once for planar fleets (without it they do not arrive:
+# docs/RESULTS.md), after sidestep_wait_3d_s more in 3-D (a robot of a 3-D fleet waiting
+# for another to pass stalls a few seconds: sidestepping then made the tests' tiny 3-D
+# swap 20% longer and its peak speed 1.057 v_max, against 5.34 s and 1.036)
 # the way round a wall (jaxplan/guide.py): "auto" (on in a world with obstacles) | "on" | "off"
 DEFAULT_GUIDE = "auto"
 DEFAULT_STALL_WINDOW_S = 2.0             # s without progress before a robot is stalled
@@ -72,6 +73,7 @@ DEFAULT_STALL_NEAR_M = 1.0               # m of clearance to another robot that 
 DEFAULT_SIDESTEP_HOLD_S = 2.0            # s a stalled robot sidesteps
 DEFAULT_SIDESTEP_STEP_M = 1.0            # m from the robot to its sidestep sub-goal
 DEFAULT_SIDESTEP_ANGLE_DEG = 60.0        # deg to the right of the direction to its goal
+DEFAULT_SIDESTEP_WAIT_3D_S = 4.0         # s more a 3-D robot stays stalled before it sidesteps
 
 DEFAULT_BACKEND = "ideal"
 DEFAULT_DURATION_S = 30.0
@@ -145,8 +147,9 @@ class PlannerConfig:
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
     deadlock "auto" | "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,
-    sidestep_hold_s, sidestep_step_m, sidestep_angle_deg: stall detection (always on)
-    and the sidestep that resolves a stall (jaxplan/deadlock.py).
+    sidestep_hold_s, sidestep_step_m, sidestep_angle_deg, sidestep_wait_3d_s: stall
+    detection (always on) and the sidestep that resolves a stall (jaxplan/deadlock.py);
+    auto: sidestep, in 3-D only after sidestep_wait_3d_s more of the stall.
     guide "auto" | "on" | "off": a robot whose straight line to its goal passes through
     an obstacle plans to a point of the shortest way round instead (jaxplan/guide.py);
     auto: on in a world with obstacles.
@@ -177,6 +180,7 @@ class PlannerConfig:
     sidestep_hold_s: number(gt=0.0, le=1e4) = DEFAULT_SIDESTEP_HOLD_S
     sidestep_step_m: number(gt=0.0, le=1e3) = DEFAULT_SIDESTEP_STEP_M
     sidestep_angle_deg: number(ge=0.0, le=90.0) = DEFAULT_SIDESTEP_ANGLE_DEG
+    sidestep_wait_3d_s: number(ge=0.0, le=1e4) = DEFAULT_SIDESTEP_WAIT_3D_S
     guide: string(one_of(GUIDE_MODES)) = DEFAULT_GUIDE
 
 
