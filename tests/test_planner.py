@@ -42,6 +42,16 @@ def test_tiny_run_succeeds_and_is_collision_free(tiny_run):
     assert np.all(np.isfinite(a["pos"])) and np.all(np.isfinite(a["seg_coeffs"]))
 
 
+def test_plans_last_at_least_two_replan_periods(tiny_run):
+    # a plan shorter than that is flown to its end within one period and can brake at
+    # several a_max there (experiment.T_MIN_PERIODS)
+    rec = tiny_run.records
+    hz = tiny_run.config.planner.replan_hz
+    T = np.asarray(rec.piece_t0)[:, :, -1] - np.asarray(rec.t)[:, None]  # the plan's end
+    assert T.min() >= 2.0 / hz - 1e-9
+    assert np.isclose(T.min(), 2.0 / hz)  # the bound is reached (settled robots)
+
+
 def test_executed_pieces_tile_and_match_states(tiny_run):
     a = tiny_run.arrays
     rec = tiny_run.records
