@@ -64,7 +64,7 @@ DEFAULT_DEADLOCK = "auto"                # "auto" | "sidestep" | "off" (detectio
 # auto: the sidestep, at once for planar fleets (without it they do not arrive:
 # docs/RESULTS.md), after sidestep_wait_3d_s more in 3-D (a robot of a 3-D fleet waiting
 # for another to pass stalls a few seconds: sidestepping then made the tests' tiny 3-D
-# swap 20% longer and its peak speed 1.057 v_max, against 5.34 s and 1.036)
+# swap 20% longer, 6.43 s against 5.34 s)
 # the way round a wall (jaxplan/guide.py): "auto" (on in a world with obstacles) | "on" | "off"
 DEFAULT_GUIDE = "auto"
 DEFAULT_STALL_WINDOW_S = 2.0             # s without progress before a robot is stalled
