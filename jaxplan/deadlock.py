@@ -16,7 +16,9 @@ radii).  The clock restarts when its goal changes and while it sidesteps.
 
 Resolution (:func:`planning_goals`): a robot that has been stalled for ``wait`` seconds
 (:func:`sidestep_wait`: none in the plane, a few in 3-D, where most stalls are a robot
-waiting for another to pass and end by themselves) *sidesteps* for ``hold`` seconds:
+waiting for another to pass and end by themselves; none either, with ``mutual``, where no
+robot near it is on its way, :func:`progressing`: a mutual stall, which waiting does not
+end) *sidesteps* for ``hold`` seconds:
 every replan it plans to a sub-goal ``step`` m from where it is, at ``angle`` to the
 right of the direction to its goal (right: clockwise seen from above, +z up; in 3-D the
 right is horizontal), with a rest end there (a position-only end at a sub-goal that
@@ -87,6 +89,7 @@ class DeadlockParams(NamedTuple):
     of clearance.  hold: () s of sidestep.  step: () m to the sub-goal.  angle: () rad
     to the right of the goal direction.  wait: () s a robot stays stalled before it
     sidesteps.  announce: () bool, broadcast the end of the plan flown (:func:`broadcast`).
+    mutual: () bool, no wait in a mutual stall (:func:`observe`).
     """
 
     enabled: jax.Array
@@ -98,19 +101,20 @@ class DeadlockParams(NamedTuple):
     angle: jax.Array
     wait: jax.Array
     announce: jax.Array
+    mutual: jax.Array
 
 
 def default_params(enabled: bool = True, window: float = 2.0, progress: float = 0.2,
                    near: float = 1.0, hold: float = 2.0, step: float = 1.0,
                    angle_deg: float = 60.0, wait: float = 0.0,
-                   announce: bool | None = None) -> DeadlockParams:
+                   announce: bool | None = None, mutual: bool = True) -> DeadlockParams:
     """DeadlockParams from plain numbers (the config's defaults); announce None: as
     ``enabled``."""
     f = lambda x: jnp.asarray(float(x))  # noqa: E731
     announce = enabled if announce is None else announce
     return DeadlockParams(jnp.asarray(bool(enabled)), f(window), f(progress), f(near),
                           f(hold), f(step), f(jnp.deg2rad(angle_deg)), f(wait),
-                          jnp.asarray(bool(announce)))
+                          jnp.asarray(bool(announce)), jnp.asarray(bool(mutual)))
 
 
 class DeadlockState(NamedTuple):
@@ -157,20 +161,40 @@ def right_of(u):
     return jnp.where(n > 1e-9, r / jnp.maximum(n, 1e-300), ex)
 
 
-def near_others(p, others_p, radius, other_radius, mask, near):
-    """(M,) bool: some other robot (others_p (M, Mo, N), its radius (M, Mo), mask
-    (M, Mo)) within ``near`` m of clearance of robot i (p (M, N), radius (M,))."""
+def near_pairs(p, others_p, radius, other_radius, mask, near):
+    """(M, Mo) bool: other robot k (others_p (M, Mo, N), its radius (M, Mo), mask
+    (M, Mo)) is within ``near`` m of clearance of robot i (p (M, N), radius (M,))."""
     d = jnp.linalg.norm(others_p - p[:, None, :], axis=-1)
     clear = d - radius[:, None] - other_radius
-    return jnp.any(mask & jnp.isfinite(clear) & (clear <= near), axis=-1)
+    return mask & jnp.isfinite(clear) & (clear <= near)
 
 
-def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near):
+def near_others(p, others_p, radius, other_radius, mask, near):
+    """(M,) bool: some other robot within ``near`` m of clearance of robot i
+    (:func:`near_pairs`)."""
+    return jnp.any(near_pairs(p, others_p, radius, other_radius, mask, near), axis=-1)
+
+
+def progressing(others_p, others_v, others_goal, prm: DeadlockParams):
+    """(M, Mo) bool: as robot i sees it, other robot k is on its way: more than
+    ``progress`` m from the goal it broadcasts and closing on it at more than
+    ``progress / window`` m/s (the least rate that keeps a robot from being stalled).
+    others_p, others_v, others_goal: (M, Mo, N)."""
+    g = others_goal - others_p
+    d = jnp.linalg.norm(g, axis=-1)
+    rate = jnp.sum(others_v * g, axis=-1) / jnp.maximum(d, 1e-9)
+    ok = jnp.isfinite(rate) & jnp.isfinite(d)
+    return ok & (d > prm.progress) & (rate > prm.progress / prm.window)
+
+
+def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=None):
     """One replan's stall bookkeeping.
 
     Args: ds: the state after the previous replan.  prm: DeadlockParams.  dt: () s since
     then.  p: (M, N) positions now.  goal_p: (M, N) current goals (the real ones).
-    near: (M,) bool, another robot close (:func:`near_others`).
+    near: (M,) bool, another robot close (:func:`near_others`).  mutual: (M,) bool, no
+    robot near i is on its way (:func:`progressing`): with ``prm.mutual`` a stalled
+    robot then sidesteps without ``wait`` (None: never mutual).
     Returns: (new DeadlockState, stalled (M,) bool, sidestep (M,) bool: sidestepping
     in this replan, started (M,) bool: a sidestep starts now).
     """
@@ -185,7 +209,8 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near):
     best = jnp.where(restart, d, ds.best)
     since = jnp.where(restart, 0.0, ds.since + dt)
     stalled = (since >= prm.window) & (d > prm.progress) & near & ~ds.occupied
-    started = stalled & prm.enabled & (since >= prm.window + prm.wait)
+    wait = prm.wait if mutual is None else jnp.where(mutual & prm.mutual, 0.0, prm.wait)
+    started = stalled & prm.enabled & (since >= prm.window + wait)
     left = jnp.where(started, prm.hold, left)
     side = left > 0
     # the clock restarts while sidestepping (progress is measured afresh afterwards)

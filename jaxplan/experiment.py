@@ -135,7 +135,8 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
             progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
             step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg,
             wait=sidestep_wait(pc.deadlock, scenario.dim, pc.sidestep_wait_3d_s),
-            announce=announces_plan_ends(pc.deadlock, scenario.dim)),
+            announce=announces_plan_ends(pc.deadlock, scenario.dim),
+            mutual=pc.sidestep_mutual_at_once),
     )
 
 

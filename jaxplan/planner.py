@@ -343,9 +343,13 @@ def stall_step(fp: FleetParams, ps: PlanState, views: Views, p, goal_p, goal_v, 
         return ps.deadlock, off, off, goal_p, goal_v, rest
     eye = jnp.eye(M, dtype=bool)
     mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
-    near = dl.near_others(p, views.p, fp.radius, jnp.broadcast_to(fp.radius, (M, M)), mask,
+    pairs = dl.near_pairs(p, views.p, fp.radius, jnp.broadcast_to(fp.radius, (M, M)), mask,
                           fp.deadlock.near)
-    ds, stalled, side, _ = dl.observe(ps.deadlock, fp.deadlock, fp.dt, p, goal_p, near)
+    near = jnp.any(pairs, axis=-1)
+    mutual = ~jnp.any(pairs & dl.progressing(views.p, views.v, views.goal_p, fp.deadlock),
+                      axis=-1)
+    ds, stalled, side, _ = dl.observe(ps.deadlock, fp.deadlock, fp.dt, p, goal_p, near,
+                                      mutual)
     stalled, side = stalled & fp.robot_mask, side & fp.robot_mask
     ds = ds._replace(left=jnp.where(fp.robot_mask, ds.left, 0.0))
     goal_p, goal_v, rest = dl.planning_goals(ds, goal_p, goal_v, rest)

@@ -196,7 +196,8 @@ _FREE_TABLES = ("sweep", "tune", "name", "description")
 # (a 3-D fleet under "auto" then never sidestepped: 1e4 s, the longest wait, stands for
 # that, so that such a directory is refused rather than resumed under the new rule)
 _LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off",
-                  ("planner", "sidestep_wait_3d_s"): 1e4}
+                  ("planner", "sidestep_wait_3d_s"): 1e4,
+                  ("planner", "sidestep_mutual_at_once"): False}
 
 
 def _guard_config(out: Path, config: Config) -> None:

@@ -12,9 +12,10 @@ DT = 0.125
 _observe = jax.jit(dl.observe)
 
 
-def _history(positions, goals, near, prm=None):
+def _history(positions, goals, near, prm=None, mutual=None):
     """Run observe over a hand-made history: positions (K, M, N), goals (M, N) or
-    (K, M, N), near (K, M).  Returns stalled, sidestep (K, M) and the last state."""
+    (K, M, N), near (K, M), mutual (K, M) or None.  Returns stalled, sidestep (K, M)
+    and the last state."""
     prm = prm or dl.default_params(enabled=False)
     positions = np.asarray(positions, float)
     K = positions.shape[0]
@@ -23,7 +24,8 @@ def _history(positions, goals, near, prm=None):
     out_s, out_side = [], []
     for k in range(K):
         ds, stalled, side, _ = _observe(ds, prm, DT, jnp.asarray(positions[k]),
-                                        jnp.asarray(goals[k]), jnp.asarray(near[k]))
+                                        jnp.asarray(goals[k]), jnp.asarray(near[k]),
+                                        None if mutual is None else jnp.asarray(mutual[k]))
         out_s.append(np.asarray(stalled))
         out_side.append(np.asarray(side))
     return np.array(out_s), np.array(out_side), ds
@@ -168,11 +170,15 @@ def swap_runs():
 
     starts, goals = _swap()
     out = {}
-    for mode in ("off", "sidestep"):
-        cfg, sc, structure, fp, task = _fleet(starts, goals, mode)
+    for mode in ("off", "sidestep", "wait"):
+        cfg, sc, structure, fp, task = _fleet(starts, goals, "off" if mode == "off" else
+                                              "sidestep")
+        if mode == "wait":  # a 4 s wait before the sidestep (a traced parameter)
+            fp = fp._replace(deadlock=fp.deadlock._replace(wait=jnp.asarray(4.0)))
         final, recs = _loop(fp, task, structure, structure.steps)
         metrics, _ = compute_metrics(cfg, sc, recs, final, np.zeros(0))
         out[mode] = metrics
+        out[mode + " records"] = recs
     return out
 
 
@@ -194,6 +200,21 @@ def test_planar_swap_succeeds_with_the_sidestep(swap_runs):
     assert m["stalls"] >= 1 and m["sidestep_s"] > 0
     bound = 2 * SWAP_R / 2.0 + 2.0 / 4.0
     assert m["makespan_over_bound"] == pytest.approx(m["makespan_s"] / bound)
+
+
+@pytest.mark.slow  # a planar closed loop compiled (~25 s on 2 cores): `make test-slow`
+def test_a_mutual_stall_does_not_wait(swap_runs):
+    # the four robots stall together in the middle, none on its way: with a 4 s wait each
+    # still sidesteps as soon as it is stalled, so the run is the one without the wait
+    info, info_w = swap_runs["sidestep records"].info, swap_runs["wait records"].info
+    stalled = np.asarray(info.stalled)
+    assert stalled.any()
+    first = np.argmax(stalled, axis=0)
+    side_w = np.asarray(info_w.sidestep)
+    assert np.all(side_w[first, np.arange(4)] | ~stalled.any(axis=0))
+    np.testing.assert_array_equal(np.asarray(swap_runs["wait records"].p),
+                                  np.asarray(swap_runs["sidestep records"].p))
+    assert swap_runs["wait"]["makespan_s"] == swap_runs["sidestep"]["makespan_s"]
 
 
 @pytest.mark.slow  # a planar closed loop compiled (~25 s on 2 cores): `make test-slow`
@@ -257,7 +278,7 @@ def test_ground_robots_and_the_antipodal_circle():
 
 
 def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
-    from jaxplan.config import build_scenario, parse_config
+    from jaxplan.config import ConfigError, build_scenario, parse_config
     from jaxplan.experiment import fleet_params
 
     assert dl.resolution_enabled("auto", 2) and dl.resolution_enabled("auto", 3)
@@ -273,7 +294,8 @@ def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
     for planner, dim, on, wait in (({}, 2, True, 0.0), ({}, 3, True, 4.0),
                                    ({"sidestep_wait_3d_s": 7.5}, 3, True, 7.5),
                                    ({"deadlock": "off"}, 2, False, 0.0),
-                                   ({"deadlock": "sidestep"}, 3, True, 0.0)):
+                                   ({"deadlock": "sidestep"}, 3, True, 0.0),
+                                   ({"sidestep_mutual_at_once": False}, 3, True, 4.0)):
         sc = {"kind": "antipodal_circle", "count": 2, "dim": dim}
         if dim == 2:
             sc["vehicles"] = ["ground"]
@@ -283,6 +305,9 @@ def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
         assert bool(prm.enabled) is on and float(prm.wait) == wait
         # the plan ends are broadcast with the sidestep, but not in 3-D under auto
         assert bool(prm.announce) is (on and (dim == 2 or "deadlock" in planner))
+        assert bool(prm.mutual) is planner.get("sidestep_mutual_at_once", True)
+    with pytest.raises(ConfigError, match="sidestep_mutual_at_once"):
+        parse_config({"planner": {"sidestep_mutual_at_once": 1}})
 
 
 def test_a_robot_sidesteps_after_the_wait_and_is_stalled_meanwhile():
@@ -298,6 +323,53 @@ def test_a_robot_sidesteps_after_the_wait_and_is_stalled_meanwhile():
         assert t[int(np.argmax(stalled[:, 0]))] == pytest.approx(2.0)
         assert t[int(np.argmax(side[:, 0]))] == pytest.approx(start)
         assert not side[t < start - 1e-9, 0].any() and side[t >= start - 1e-9, 0].all()
+
+
+def test_a_mutual_stall_sidesteps_without_the_wait():
+    # the same robot, its wait 1 s: where no robot near it is on its way (mutual) it
+    # sidesteps as soon as it is stalled; where one is (it waits for it to pass), after
+    # the wait; the mutual flag of the replan decides
+    K = 30
+    pos = np.zeros((K, 1, 2))
+    near = np.ones((K, 1), bool)
+    t = DT * np.arange(K)
+    prm = dl.default_params(enabled=True, hold=10.0, wait=1.0)
+    mutual = np.ones((K, 1), bool)
+    mutual[t < 2.5] = False  # the other robot moves until 2.5 s, then stops
+    for m, start in ((np.ones((K, 1), bool), 2.0), (np.zeros((K, 1), bool), 3.0),
+                     (mutual, 2.5)):
+        stalled, side, _ = _history(pos, [[3.0, 0.0]], near, prm, mutual=m)
+        assert t[int(np.argmax(stalled[:, 0]))] == pytest.approx(2.0)
+        assert t[int(np.argmax(side[:, 0]))] == pytest.approx(start)
+    # sidestep_mutual_at_once = false: the wait whatever the others do
+    prm = dl.default_params(enabled=True, hold=10.0, wait=1.0, mutual=False)
+    _, side, _ = _history(pos, [[3.0, 0.0]], near, prm, mutual=np.ones((K, 1), bool))
+    assert t[int(np.argmax(side[:, 0]))] == pytest.approx(3.0)
+
+
+def test_progressing_is_closing_on_the_broadcast_goal():
+    # observer 0 sees four others, each 2 m from its goal at +x; closing rate over the
+    # threshold progress / window = 0.1 m/s: only robot 1 (0.5 m/s toward it)
+    prm = dl.default_params()
+    p = np.array([[[0.0, 0, 0], [0, 1, 0], [0, 2, 0], [0, 3, 0], [2, 4, 0]]])
+    goal = p + np.array([2.0, 0, 0])
+    goal[0, 4] = p[0, 4] + [0.1, 0, 0]  # robot 4: 0.1 m from its goal
+    v = np.array([[[0.0, 0, 0],      # itself (masked by the caller)
+                   [0.5, 0, 0],      # on its way
+                   [0.05, 0.4, 0],   # 0.05 m/s toward its goal: too slow
+                   [-0.5, 0, 0],     # away from it
+                   [0.5, 0, 0]]])    # at its goal (within progress)
+    got = np.asarray(dl.progressing(jnp.asarray(p), jnp.asarray(v), jnp.asarray(goal), prm))
+    assert got.tolist() == [[False, True, False, False, False]]
+    # the threshold follows the parameters: 0.04 m/s with a 5 s window
+    prm5 = dl.default_params(window=5.0)
+    got = np.asarray(dl.progressing(jnp.asarray(p), jnp.asarray(v), jnp.asarray(goal), prm5))
+    assert got.tolist() == [[False, True, True, False, False]]
+    # non-finite views are not on their way
+    v_nan = v.copy()
+    v_nan[0, 1, 0] = np.nan
+    assert not bool(dl.progressing(jnp.asarray(p), jnp.asarray(v_nan), jnp.asarray(goal),
+                                   prm)[0, 1])
 
 
 def test_a_robot_broadcasts_the_end_of_the_plan_it_flies():

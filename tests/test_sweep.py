@@ -171,6 +171,15 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
     (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
+    # nor one written before a mutual stall sidestepped at once (sidestep_mutual_at_once)
+    doc["planner"]["sidestep_wait_3d_s"] = cfg.planner.sidestep_wait_3d_s
+    doc["planner"].pop("sidestep_mutual_at_once")
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    with pytest.raises(SweepError, match="different config.*planner"):
+        _guard_config(tmp_path, cfg)
+    doc["planner"]["sidestep_mutual_at_once"] = True  # the same config again: accepted
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    _guard_config(tmp_path, cfg)
     doc["planner"]["no_such_key"] = 1
     (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
     with pytest.raises(SweepError, match="not a config this version reads"):

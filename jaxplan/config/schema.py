@@ -74,6 +74,9 @@ DEFAULT_SIDESTEP_HOLD_S = 2.0            # s a stalled robot sidesteps
 DEFAULT_SIDESTEP_STEP_M = 1.0            # m from the robot to its sidestep sub-goal
 DEFAULT_SIDESTEP_ANGLE_DEG = 60.0        # deg to the right of the direction to its goal
 DEFAULT_SIDESTEP_WAIT_3D_S = 4.0         # s more a 3-D robot stays stalled before it sidesteps
+# ... unless no robot near it is on its way (a mutual stall, none waiting for another to
+# pass): then at once (3-D circles in one plane: makespan / bound 3.99 -> 2.84, 8 robots)
+DEFAULT_SIDESTEP_MUTUAL_AT_ONCE = True
 
 DEFAULT_BACKEND = "ideal"
 DEFAULT_DURATION_S = 30.0
@@ -147,9 +150,10 @@ class PlannerConfig:
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
     deadlock "auto" | "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,
-    sidestep_hold_s, sidestep_step_m, sidestep_angle_deg, sidestep_wait_3d_s: stall
-    detection (always on) and the sidestep that resolves a stall (jaxplan/deadlock.py);
-    auto: sidestep, in 3-D only after sidestep_wait_3d_s more of the stall.
+    sidestep_hold_s, sidestep_step_m, sidestep_angle_deg, sidestep_wait_3d_s,
+    sidestep_mutual_at_once: stall detection (always on) and the sidestep that resolves
+    a stall (jaxplan/deadlock.py); auto: sidestep, in 3-D only after sidestep_wait_3d_s
+    more of the stall, unless (sidestep_mutual_at_once) no robot near is on its way.
     guide "auto" | "on" | "off": a robot whose straight line to its goal passes through
     an obstacle plans to a point of the shortest way round instead (jaxplan/guide.py);
     auto: on in a world with obstacles.
@@ -181,6 +185,7 @@ class PlannerConfig:
     sidestep_step_m: number(gt=0.0, le=1e3) = DEFAULT_SIDESTEP_STEP_M
     sidestep_angle_deg: number(ge=0.0, le=90.0) = DEFAULT_SIDESTEP_ANGLE_DEG
     sidestep_wait_3d_s: number(ge=0.0, le=1e4) = DEFAULT_SIDESTEP_WAIT_3D_S
+    sidestep_mutual_at_once: Annotated[bool, Strict()] = DEFAULT_SIDESTEP_MUTUAL_AT_ONCE
     guide: string(one_of(GUIDE_MODES)) = DEFAULT_GUIDE
 
 
