@@ -217,7 +217,11 @@ def summary(m: dict, out: Path, cache: str | None = None) -> str:
         "; < 1 is a collision)",
         f"  makespan {f(m['makespan_s'], '{:.2f}')} s   peak speed {f(m['peak_speed'], '{:.2f}')}"
         f" m/s ({f(m['peak_speed_over_limit'], '{:.3f}')} x v_max)",
-        f"  reached {sum(r['reached'] for r in m['per_robot'])}/{m['robots']} robots",
+        f"  reached {sum(r['reached'] for r in m['per_robot'])}/{m['robots']} robots"
+        + (f"; after reaching it, up to {m['max_goal_departure_m']:.2f} m from it"
+           if m.get("max_goal_departure_m") is not None else "")
+        + (f"; all settled by {m['settled_makespan_s']:.2f} s"
+           if m.get("settled_makespan_s") is not None else ""),
         f"  replan wall time: median {f(s['median_ms'], '{:.1f}')} ms, p95 "
         f"{f(s['p95_ms'], '{:.1f}')} ms, max {f(s['max_ms'], '{:.1f}')} ms; "
         f"converged {f(s['converged_frac'], '{:.1%}')}",

@@ -392,6 +392,21 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     reached, ttg, all_reached, makespan = _goals(final, duration, M, frozen_robot)
     info = records.info
     stalls = _stalls(config, scenario, records, reached, ttg, frozen_robot)
+    arrays = _run_arrays(scenario, records, pieces, min_dist, duration)
+    departure = goal_departure(arrays["t"], arrays["pos"], scenario.waypoints[:, -1], ttg)
+    # from when each robot stays at its last waypoint to the end: within goal_tolerance_m
+    # (and, for a rest waypoint, at most goal_speed_tolerance_mps), as "reached" counts it
+    goal, tol = scenario.waypoints[:, -1], config.sim.goal_tolerance_m
+    still = mt.time_to_goal(arrays["t"], arrays["pos"], goal, tol, vel=arrays["vel"],
+                            speed_tol=config.sim.goal_speed_tolerance_mps)
+    settled = np.where(np.asarray(scenario.rest)[:, -1], still,
+                       mt.time_to_goal(arrays["t"], arrays["pos"], goal, tol))
+    settled = np.where(reached[:, -1], settled, np.nan)
+    responsive = np.arange(M) != frozen_robot
+    dep = departure[responsive & np.isfinite(departure)]
+    parked_at = np.array([np.nan if x["parked_at_s"] is None else x["parked_at_s"]
+                          for x in stalls["per_robot"]])
+    settled_all = np.where(np.isfinite(settled), settled, parked_at)[responsive]
     metrics = {
         "name": config.name,
         "backend": config.sim.backend,
@@ -403,6 +418,9 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         **{k: v for k, v in world.items() if not k.startswith("per_robot")},
         "makespan_s": stalls["makespan_s"],
         "makespan_over_bound": stalls["makespan_over_bound"],
+        "max_goal_departure_m": _num(dep.max()) if dep.size else None,
+        "settled_makespan_s": _num(settled_all.max())
+        if settled_all.size and np.all(np.isfinite(settled_all)) else None,
         "parked": stalls["parked"],
         "stalls": stalls["stalls"],
         "stalled_s": stalls["stalled_s"],
@@ -412,8 +430,11 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         "robots": M,
         "peak_speed": _num(np.nanmax(kin.max_speed)),
         "peak_speed_over_limit": _num(np.nanmax(kin.max_speed / scenario.v_max)),
-        "per_robot": [{**r, **x} for r, x in zip(_per_robot(scenario, reached, ttg, kin, world),
-                                                    stalls["per_robot"], strict=True)],
+        "per_robot": [{**r, **x, "goal_departure_m": _num(d) if np.isfinite(d) else None,
+                       "settled_s": _num(s) if np.isfinite(s) else None}
+                      for r, x, d, s in zip(_per_robot(scenario, reached, ttg, kin, world),
+                                            stalls["per_robot"], departure, settled,
+                                            strict=True)],
         "solver": _solver(info, solve_ms),
         "faults": _fault_summary(config, records, sep, min_dist, scenario, frozen_robot),
         "fallbacks": {
@@ -423,7 +444,22 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         },
     }
     metrics["success"] = _success(metrics)
-    return metrics, _run_arrays(scenario, records, pieces, min_dist, duration)
+    return metrics, arrays
+
+
+def goal_departure(t, pos, goal, reach_time):
+    """(M,) m: how far each robot went from its last waypoint after it first reached it
+    (the largest distance over the samples from its reach time on; NaN where it never
+    reached it).  "Reached" is the first instant within goal_tolerance_m: a robot may
+    give way afterwards, and this says how far.  t: (K,) s; pos: (M, K, N) sampled
+    positions (trajectories.npz, SAMPLE_HZ); goal: (M, N); reach_time: (M,) s, NaN: not
+    reached."""
+    t, pos, goal = np.asarray(t), np.asarray(pos), np.asarray(goal)
+    reach_time = np.asarray(reach_time, np.float64)
+    d = np.linalg.norm(pos - goal[:, None, :], axis=-1)  # (M, K)
+    after = t[None, :] >= reach_time[:, None]  # NaN compares False
+    out = np.max(np.where(after, d, -np.inf), axis=1, initial=-np.inf)
+    return np.where(np.isfinite(reach_time) & np.isfinite(out), out, np.nan)
 
 
 def _success(metrics: dict) -> bool:

@@ -200,6 +200,9 @@ def test_planar_swap_succeeds_with_the_sidestep(swap_runs):
     assert m["stalls"] >= 1 and m["sidestep_s"] > 0
     bound = 2 * SWAP_R / 2.0 + 2.0 / 4.0
     assert m["makespan_over_bound"] == pytest.approx(m["makespan_s"] / bound)
+    # rest ends: a robot settles (stays at its goal, slow) no earlier than it reached it
+    for r in m["per_robot"]:
+        assert r["time_to_goal_s"] - 0.01 <= r["settled_s"] <= m["settled_makespan_s"]
 
 
 @pytest.mark.slow  # a planar closed loop compiled (~25 s on 2 cores): `make test-slow`

@@ -6,6 +6,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxplan import experiment as ex
 from jaxplan import metrics as mt
@@ -40,6 +41,40 @@ def test_tiny_run_succeeds_and_is_collision_free(tiny_run):
         assert r["max_speed"] <= 1.05 * r["v_max"]
     a = tiny_run.arrays
     assert np.all(np.isfinite(a["pos"])) and np.all(np.isfinite(a["seg_coeffs"]))
+
+
+def test_goal_departure_after_reaching(tiny_run):
+    # by hand: robot 0 reaches its goal at 1 s, drifts 0.5 m away at 2 s and comes back;
+    # robot 1 never reaches it; robot 2 reaches it at the last sample
+    t = np.linspace(0.0, 3.0, 31)
+    pos = np.zeros((3, 31, 2))
+    pos[0, :, 0] = np.where(t < 1.0, 1.0 - t, 0.5 * np.sin(np.pi * (t - 1.0) / 2.0) ** 2)
+    pos[1, :, 0] = 5.0
+    goal = np.zeros((3, 2))
+    dep = ex.goal_departure(t, pos, goal, np.array([1.0, np.nan, 3.0]))
+    assert dep[0] == pytest.approx(0.5) and np.isnan(dep[1]) and dep[2] == 0.0
+    # the tiny run: per robot, against the trajectories.npz samples from its time to goal
+    m, a = tiny_run.metrics, tiny_run.arrays
+    for i, r in enumerate(m["per_robot"]):
+        after = a["t"] >= r["time_to_goal_s"]
+        d = np.linalg.norm(a["pos"][i, after] - a["goal"][i], axis=-1).max()
+        assert r["goal_departure_m"] == pytest.approx(d, abs=1e-12)
+        assert d >= np.linalg.norm(a["pos"][i, -1] - a["goal"][i])
+    assert m["max_goal_departure_m"] == max(r["goal_departure_m"] for r in m["per_robot"])
+    # settled: within goal_tolerance_m from then to the end, not the sample before (free
+    # ends: position only)
+    assert not np.any(tiny_run.scenario.rest)
+    tol = tiny_run.config.sim.goal_tolerance_m
+    for i, r in enumerate(m["per_robot"]):
+        d = np.linalg.norm(a["pos"][i] - a["goal"][i], axis=-1)
+        k = int(np.searchsorted(a["t"], r["settled_s"]))
+        assert a["t"][k] == r["settled_s"] and np.all(d[k:] <= tol) and d[k - 1] > tol
+        assert r["settled_s"] >= r["time_to_goal_s"]
+    assert m["settled_makespan_s"] == max(r["settled_s"] for r in m["per_robot"])
+    # free ends: the tiny swap's robots pass their goals at speed (first within 0.1 m)
+    # and come back (examples/tiny.toml: the default end_state, "free", the paper's)
+    assert m["settled_makespan_s"] > m["makespan_s"]
+    assert m["max_goal_departure_m"] > 10 * tol
 
 
 def test_plans_last_at_least_two_replan_periods(tiny_run):
