@@ -9,10 +9,12 @@ deterministic, no random draws).
 Detection (:func:`observe`).  Robot i tracks ``best``, the smallest distance to its
 current goal since its progress clock last restarted, and ``since``, the time since
 that distance last fell by at least ``progress`` (m).  It is **stalled** when
-``since >= window`` (s), it is more than ``progress`` from its goal, its goal is not
-occupied (a robot parked beside an occupied goal waits by design, :mod:`jaxplan.planner`)
-and another robot it sees is within ``near`` (m) of clearance (centre distance minus both
-radii).  The clock restarts when its goal changes and while it sidesteps.
+``since >= window`` (s), it is more than ``progress`` from its goal and has not been
+within that since the goal was set (a robot that passed its goal at speed and turns back
+makes no progress for a while: that is no stall), its goal is not occupied (a robot
+parked beside an occupied goal waits by design, :mod:`jaxplan.planner`) and another
+robot it sees is within ``near`` (m) of clearance (centre distance minus both radii).
+The clock restarts when its goal changes and while it sidesteps.
 
 Resolution (:func:`planning_goals`): a robot that has been stalled for ``wait`` seconds
 (:func:`sidestep_wait`: none in the plane, a few in 3-D, where most stalls are a robot
@@ -125,7 +127,8 @@ class DeadlockState(NamedTuple):
     left: (M,) s of sidestep left (> 0: sidestepping).  sub: (M, N) the sub-goal of the
     last replan.  occupied: (M,) bool, the last replan planned beside an occupied goal.
     pub_p, pub_v: (M, N), pub_rest: (M,) bool: what the robot broadcasts as its goal at
-    the next replan (:func:`broadcast`) where pub_ok (M,) bool.
+    the next replan (:func:`broadcast`) where pub_ok (M,) bool.  arrived: (M,) bool, it
+    has been within ``progress`` of its goal since that goal was set.
     """
 
     goal: jax.Array
@@ -138,6 +141,7 @@ class DeadlockState(NamedTuple):
     pub_v: jax.Array
     pub_rest: jax.Array
     pub_ok: jax.Array
+    arrived: jax.Array
 
 
 def initial_state(p, goal=None) -> DeadlockState:
@@ -147,7 +151,8 @@ def initial_state(p, goal=None) -> DeadlockState:
     g = jnp.full_like(p, jnp.nan) if goal is None else goal
     return DeadlockState(g, jnp.full((M,), jnp.inf), jnp.zeros((M,)), jnp.zeros((M,)),
                          jnp.asarray(p), jnp.zeros((M,), bool), jnp.asarray(p),
-                         jnp.zeros_like(p), jnp.zeros((M,), bool), jnp.zeros((M,), bool))
+                         jnp.zeros_like(p), jnp.zeros((M,), bool), jnp.zeros((M,), bool),
+                         jnp.zeros((M,), bool))
 
 
 def right_of(u):
@@ -208,7 +213,11 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     restart = new_goal | improved | side
     best = jnp.where(restart, d, ds.best)
     since = jnp.where(restart, 0.0, ds.since + dt)
-    stalled = (since >= prm.window) & (d > prm.progress) & near & ~ds.occupied
+    # a robot that got to its goal is not stalled on the way back: a free end is passed
+    # at speed, and the turn back makes no progress for a while (six_neos: every robot
+    # came back "stalled", with the neighbours it passed hovering)
+    arrived = jnp.where(new_goal, False, ds.arrived) | (d <= prm.progress)
+    stalled = (since >= prm.window) & (d > prm.progress) & near & ~ds.occupied & ~arrived
     wait = prm.wait if mutual is None else jnp.where(mutual & prm.mutual, 0.0, prm.wait)
     started = stalled & prm.enabled & (since >= prm.window + wait)
     left = jnp.where(started, prm.hold, left)
@@ -221,7 +230,8 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     fin = lambda x, old: jnp.where(jnp.isfinite(x), x, jnp.where(jnp.isfinite(old), old, 0.0))
     sub = fin(sub, ds.sub)
     goal_kept = fin(goal_p, ds.goal)
-    new = ds._replace(goal=goal_kept, best=best, since=since, left=left, sub=sub)
+    new = ds._replace(goal=goal_kept, best=best, since=since, left=left, sub=sub,
+                      arrived=arrived)
     return new, stalled, side, started
 
 
