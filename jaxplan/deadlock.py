@@ -9,12 +9,12 @@ deterministic, no random draws).
 Detection (:func:`observe`).  Robot i tracks ``best``, the smallest distance to its
 current goal since its progress clock last restarted, and ``since``, the time since
 that distance last fell by at least ``progress`` (m).  It is **stalled** when
-``since >= window`` (s), it is more than ``progress`` from its goal and has not been
-within that since the goal was set (a robot that passed its goal at speed and turns back
-makes no progress for a while: that is no stall), its goal is not occupied (a robot
-parked beside an occupied goal waits by design, :mod:`jaxplan.planner`) and another
-robot it sees is within ``near`` (m) of clearance (centre distance minus both radii).
-The clock restarts when its goal changes and while it sidesteps.
+``since >= window`` (s), it is more than ``progress`` from its goal, its goal is not
+occupied (a robot parked beside an occupied goal waits by design, :mod:`jaxplan.planner`)
+and another robot it sees is within ``near`` (m) of clearance (centre distance minus both
+radii).  The clock restarts when its goal changes, while it sidesteps, and while a robot
+that has been at its goal moves away from it (``best`` follows it: a free end is passed
+at speed, and the way back is measured from the farthest point).
 
 Resolution (:func:`planning_goals`): a robot that has been stalled for ``wait`` seconds
 (:func:`sidestep_wait`: none in the plane, a few in 3-D, where most stalls are a robot
@@ -128,7 +128,8 @@ class DeadlockState(NamedTuple):
     last replan.  occupied: (M,) bool, the last replan planned beside an occupied goal.
     pub_p, pub_v: (M, N), pub_rest: (M,) bool: what the robot broadcasts as its goal at
     the next replan (:func:`broadcast`) where pub_ok (M,) bool.  arrived: (M,) bool, it
-    has been within ``progress`` of its goal since that goal was set.
+    has been within ``progress`` of its goal since that goal was set (``best`` then
+    follows it away from the goal).
     """
 
     goal: jax.Array
@@ -210,14 +211,16 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     left = jnp.where(new_goal, 0.0, left)
     side = left > 0
     improved = d <= ds.best - prm.progress
-    restart = new_goal | improved | side
+    # a robot that has been at its goal and drifts away from it (a free end is passed at
+    # speed) measures its way back from the farthest point: the clock restarts while it
+    # moves away (else the turn back, which cannot come 0.2 m closer than the goal it
+    # passed, counted as a stall: six_neos, every robot)
+    away = ds.arrived & ~new_goal & (d > ds.best)
+    restart = new_goal | improved | side | away
     best = jnp.where(restart, d, ds.best)
     since = jnp.where(restart, 0.0, ds.since + dt)
-    # a robot that got to its goal is not stalled on the way back: a free end is passed
-    # at speed, and the turn back makes no progress for a while (six_neos: every robot
-    # came back "stalled", with the neighbours it passed hovering)
     arrived = jnp.where(new_goal, False, ds.arrived) | (d <= prm.progress)
-    stalled = (since >= prm.window) & (d > prm.progress) & near & ~ds.occupied & ~arrived
+    stalled = (since >= prm.window) & (d > prm.progress) & near & ~ds.occupied
     wait = prm.wait if mutual is None else jnp.where(mutual & prm.mutual, 0.0, prm.wait)
     started = stalled & prm.enabled & (since >= prm.window + wait)
     left = jnp.where(started, prm.hold, left)

@@ -63,27 +63,30 @@ def test_stall_detection_on_a_hand_made_history():
 
 
 def test_a_robot_turning_back_after_passing_its_goal_is_not_stalled():
-    # robot 0 passes its goal (x = 2) at 1 m/s, goes on 1.5 m beyond, turns and creeps
-    # back at 0.05 m/s with a robot near: no stall (it got there).  Robot 1 turns back
-    # 0.3 m short of the same goal (never within 0.2 m of it): stalled.  At 6 s robot 0
-    # gets a new goal 3 m away and stands: stalled again 2 s later
+    # robot 0 passes its goal (x = 2) at 1 m/s, goes on 1.5 m beyond, turns and comes
+    # back at 0.3 m/s with a robot near: no stall (its way back is measured from where it
+    # turned).  Robot 1 does the same but stops 1 m beyond its goal on the way back:
+    # stalled.  Robot 2 turns back 0.3 m short of the same goal (never within 0.2 m of
+    # it): stalled (it is not on a way back from it)
     K = 80
     t = DT * np.arange(K)
-    x = np.where(t < 3.5, t, 3.5 - 0.05 * (t - 3.5))
-    pos = np.zeros((K, 2, 2))
-    pos[:, 0, 0] = np.where(t < 6.0, x, x[int(6.0 / DT)])
-    pos[:, 1, 0] = np.where(t < 1.7, t, 1.7 - 0.05 * (t - 1.7))
-    goals = np.broadcast_to(np.array([[2.0, 0.0], [2.0, 0.0]]), (K, 2, 2)).copy()
-    goals[t >= 6.0, 0] = [pos[int(6.0 / DT), 0, 0] + 3.0, 0.0]
-    near = np.ones((K, 2), bool)
+    x = np.where(t < 3.5, t, 3.5 - 0.3 * (t - 3.5))
+    pos = np.zeros((K, 3, 2))
+    pos[:, 0, 0] = np.where(t < 3.5, t, np.maximum(x, 2.0))
+    pos[:, 1, 0] = np.where(t < 3.5, t, np.maximum(x, 3.0))  # stops at x = 3 (t = 5.17)
+    pos[:, 2, 0] = np.where(t < 1.7, t, 1.7 - 0.3 * (t - 1.7))
+    goals = np.array([[2.0, 0.0], [2.0, 0.0], [2.0, 0.0]])
+    near = np.ones((K, 3), bool)
     stalled, _, _ = _history(pos, goals, near)
-    assert not stalled[t < 6.0, 0].any()
-    assert t[int(np.argmax(stalled[:, 0]))] == pytest.approx(8.0)
-    assert stalled[t >= 8.0, 0].all()
-    # robot 1 last improved (by 0.2 m, on the replan grid) at t = 1.5 (d = 0.5): stalled
+    assert not stalled[:, 0].any()
+    # robot 1, from its farthest point (d = 1.5 at 3.5 s), improved by 0.2 m on the
+    # replan grid at 4.25 s (d = 1.275) and 5.0 s (d = 1.05), then stopped at d = 1:
+    # stalled from 7.0 s on
+    assert t[int(np.argmax(stalled[:, 1]))] == pytest.approx(7.0)
+    assert stalled[t >= 7.0, 1].all()
+    # robot 2 last improved (by 0.2 m, on the replan grid) at t = 1.5 (d = 0.5): stalled
     # from 3.5 s on
-    assert t[int(np.argmax(stalled[:, 1]))] == pytest.approx(3.5)
-    assert stalled[t >= 3.5, 1].all()
+    assert t[int(np.argmax(stalled[:, 2]))] == pytest.approx(3.5)
 
 
 def test_a_new_goal_restarts_the_clock_and_a_stall_starts_a_sidestep():
