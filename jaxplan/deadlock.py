@@ -175,12 +175,6 @@ def near_pairs(p, others_p, radius, other_radius, mask, near):
     return mask & jnp.isfinite(clear) & (clear <= near)
 
 
-def near_others(p, others_p, radius, other_radius, mask, near):
-    """(M,) bool: some other robot within ``near`` m of clearance of robot i
-    (:func:`near_pairs`)."""
-    return jnp.any(near_pairs(p, others_p, radius, other_radius, mask, near), axis=-1)
-
-
 def progressing(others_p, others_v, others_goal, prm: DeadlockParams):
     """(M, Mo) bool: as robot i sees it, other robot k is on its way: more than
     ``progress`` m from the goal it broadcasts and closing on it at more than
@@ -198,7 +192,7 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
 
     Args: ds: the state after the previous replan.  prm: DeadlockParams.  dt: () s since
     then.  p: (M, N) positions now.  goal_p: (M, N) current goals (the real ones).
-    near: (M,) bool, another robot close (:func:`near_others`).  mutual: (M,) bool, no
+    near: (M,) bool, another robot close (any of :func:`near_pairs`).  mutual: (M,) bool, no
     robot near i is on its way (:func:`progressing`): with ``prm.mutual`` a stalled
     robot then sidesteps without ``wait`` (None: never mutual).
     Returns: (new DeadlockState, stalled (M,) bool, sidestep (M,) bool: sidestepping
