@@ -25,6 +25,7 @@ from jaxplan import world_metrics as wm
 from jaxplan.config import Config, build_scenario
 from jaxplan.deadlock import (
     announces_plan_ends,
+    mutual_window,
     resolution_enabled,
     sidestep_wait,
     stall_summary,
@@ -136,7 +137,9 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
             step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg,
             wait=sidestep_wait(pc.deadlock, scenario.dim, pc.sidestep_wait_3d_s),
             announce=announces_plan_ends(pc.deadlock, scenario.dim),
-            mutual=pc.sidestep_mutual_at_once),
+            mutual=pc.sidestep_mutual_at_once,
+            window_mutual=mutual_window(pc.deadlock, scenario.dim, pc.stall_window_s,
+                                        pc.stall_window_mutual_s)),
     )
 
 

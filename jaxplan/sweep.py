@@ -197,7 +197,8 @@ _FREE_TABLES = ("sweep", "tune", "name", "description")
 # that, so that such a directory is refused rather than resumed under the new rule)
 _LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off",
                   ("planner", "sidestep_wait_3d_s"): 1e4,
-                  ("planner", "sidestep_mutual_at_once"): False}
+                  ("planner", "sidestep_mutual_at_once"): False,
+                  ("planner", "stall_window_mutual_s"): 1e4}
 
 
 def _guard_config(out: Path, config: Config) -> None:

@@ -319,6 +319,7 @@ def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
     assert dl.announces_plan_ends("auto", 2) and not dl.announces_plan_ends("auto", 3)
     assert dl.announces_plan_ends("sidestep", 3) and not dl.announces_plan_ends("off", 2)
     for bad in (dl.resolution_enabled, lambda r, d: dl.sidestep_wait(r, d, 1.0),
+                lambda r, d: dl.mutual_window(r, d, 2.0, 0.5),
                 dl.announces_plan_ends):
         with pytest.raises(ValueError, match="yield"):
             bad("yield", 2)
@@ -326,7 +327,9 @@ def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
                                    ({"sidestep_wait_3d_s": 7.5}, 3, True, 7.5),
                                    ({"deadlock": "off"}, 2, False, 0.0),
                                    ({"deadlock": "sidestep"}, 3, True, 0.0),
-                                   ({"sidestep_mutual_at_once": False}, 3, True, 4.0)):
+                                   ({"sidestep_mutual_at_once": False}, 3, True, 4.0),
+                                   ({"stall_window_mutual_s": 0.25}, 2, True, 0.0),
+                                   ({"stall_window_mutual_s": 0.25}, 3, True, 4.0)):
         sc = {"kind": "antipodal_circle", "count": 2, "dim": dim}
         if dim == 2:
             sc["vehicles"] = ["ground"]
@@ -337,8 +340,14 @@ def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
         # the plan ends are broadcast with the sidestep, but not in 3-D under auto
         assert bool(prm.announce) is (on and (dim == 2 or "deadlock" in planner))
         assert bool(prm.mutual) is planner.get("sidestep_mutual_at_once", True)
+        # the mutual window in a 3-D fleet under auto (else the window)
+        mutual_window = dim == 3 and planner.get("deadlock", "auto") == "auto"
+        assert float(prm.window_mutual) == (planner.get("stall_window_mutual_s", 0.5)
+                                            if mutual_window else 2.0)
     with pytest.raises(ConfigError, match="sidestep_mutual_at_once"):
         parse_config({"planner": {"sidestep_mutual_at_once": 1}})
+    with pytest.raises(ConfigError, match="stall_window_mutual_s"):
+        parse_config({"planner": {"stall_window_mutual_s": 0.0}})
 
 
 def test_a_robot_sidesteps_after_the_wait_and_is_stalled_meanwhile():
@@ -376,6 +385,40 @@ def test_a_mutual_stall_sidesteps_without_the_wait():
     prm = dl.default_params(enabled=True, hold=10.0, wait=1.0, mutual=False)
     _, side, _ = _history(pos, [[3.0, 0.0]], near, prm, mutual=np.ones((K, 1), bool))
     assert t[int(np.argmax(side[:, 0]))] == pytest.approx(3.0)
+
+
+def test_a_mutual_stall_is_one_after_the_shorter_window():
+    # a robot closes on its goal (6 m ahead) at 1 m/s until 3 s, then stands with a robot
+    # near; window 2 s, window_mutual 0.5 s, wait 1 s, hold 1 s
+    K = 80
+    t = DT * np.arange(K)
+    pos = np.minimum(t, 3.0)[:, None, None] * np.array([1.0, 0.0])
+    near = np.ones((K, 1), bool)
+    prm = dl.default_params(enabled=True, window=2.0, hold=1.0, wait=1.0, window_mutual=0.5)
+    first = lambda flags: t[int(np.argmax(flags[:, 0]))]  # noqa: E731
+    # nobody near on its way: stalled 0.5 s after its last progress, and sidesteps then
+    stalled, side, _ = _history(pos, [[6.0, 0.0]], near, prm, mutual=np.ones((K, 1), bool))
+    assert first(stalled) == pytest.approx(3.5) and first(side) == pytest.approx(3.5)
+    # after the sidestep (3.5-4.5 s) it stands again: the full window before the next one
+    # (a robot turning back to its goal makes little progress at first)
+    k0 = int(np.argmax(side[:, 0]))
+    last = t[k0 + int(np.argmin(side[k0:, 0])) - 1]  # its last replan sidestepping
+    assert last == pytest.approx(4.5 - DT)
+    again = side[:, 0] & (t > last + DT)
+    assert again.any() and t[again].min() == pytest.approx(last + 2.0)
+    # another near robot on its way: the window and the wait as before
+    stalled, side, _ = _history(pos, [[6.0, 0.0]], near, prm, mutual=np.zeros((K, 1), bool))
+    assert first(stalled) == pytest.approx(5.0) and first(side) == pytest.approx(6.0)
+    # from rest at the start the full window too (robots accelerating from rest)
+    stand = np.zeros((K, 1, 2))
+    stalled, side, _ = _history(stand, [[6.0, 0.0]], near, prm, mutual=np.ones((K, 1), bool))
+    assert first(stalled) == pytest.approx(2.0) and first(side) == pytest.approx(2.0)
+    # window_mutual not shorter than the window (a config from before the key): no change
+    for wm in (2.0, 1e4):
+        prm_wm = prm._replace(window_mutual=jnp.asarray(wm))
+        stalled, side, _ = _history(pos, [[6.0, 0.0]], near, prm_wm,
+                                    mutual=np.ones((K, 1), bool))
+        assert first(stalled) == pytest.approx(5.0) and first(side) == pytest.approx(5.0)
 
 
 def test_progressing_is_closing_on_the_broadcast_goal():

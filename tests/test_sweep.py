@@ -177,7 +177,13 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
     (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
-    doc["planner"]["sidestep_mutual_at_once"] = True  # the same config again: accepted
+    # nor one written before a mutual stall had its own window (stall_window_mutual_s)
+    doc["planner"]["sidestep_mutual_at_once"] = True
+    doc["planner"].pop("stall_window_mutual_s")
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    with pytest.raises(SweepError, match="different config.*planner"):
+        _guard_config(tmp_path, cfg)
+    doc["planner"]["stall_window_mutual_s"] = 0.5  # the same config again: accepted
     (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
     _guard_config(tmp_path, cfg)
     doc["planner"]["no_such_key"] = 1
