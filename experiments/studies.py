@@ -218,7 +218,7 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
     else:
         res = run_sweep(cfg, out, progress=sys.stderr.isatty(), batch_size=batch,
                         figures=False, echo=None)
-    rows, _ = read_sweep_csv(res.csv)
+    rows, _ = read_sweep_csv(res.csv, older=COLLECT)
     num = lambda k: [float(r[k]) for r in rows if r[k] not in ("", "nan")]  # noqa: E731
     ms = num("makespan_s")
     total = lambda k: int(sum(num(k))) if rows and k in rows[0] else None  # noqa: E731
@@ -284,7 +284,8 @@ def _complete(out: Path, runs: int) -> bool:
     """The sweep directory ``out`` holds ``runs`` finished rows."""
     from jaxplan.sweep_csv import read_sweep_csv
 
-    return (out / "sweep.csv").exists() and len(read_sweep_csv(out / "sweep.csv")[0]) >= runs
+    return ((out / "sweep.csv").exists()
+            and len(read_sweep_csv(out / "sweep.csv", older=True)[0]) >= runs)
 
 
 def _deadlock_study(a) -> tuple[str, dict]:

@@ -194,6 +194,8 @@ def csv_row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
         "stalled_s": _csv_cell(metrics.get("stalled_s")),
         "parked": _csv_cell(int(metrics.get("parked", 0))),
         "makespan_over_bound": _csv_cell(metrics.get("makespan_over_bound")),
+        "settled_makespan_s": _csv_cell(metrics.get("settled_makespan_s")),
+        "max_goal_departure_m": _csv_cell(metrics.get("max_goal_departure_m")),
     })
     return row
 

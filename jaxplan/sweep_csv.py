@@ -43,6 +43,7 @@ COLUMNS = KEY_COLUMNS + (
     "obstacle_collisions", "min_obstacle_clearance_m", "workspace_violations",
     "min_workspace_clearance_m",
     "stalls", "stalled_s", "parked", "makespan_over_bound",
+    "settled_makespan_s", "max_goal_departure_m",
 )
 ANALYSIS_COLUMNS = ("q_obs", "q_lim", "scenario", "seed", "success", "min_separation_ratio",
                     "makespan_s", "collisions")
@@ -102,12 +103,14 @@ class CsvInfo:
         return not (self.partial_bytes or self.malformed or self.duplicates)
 
 
-def read_sweep_csv(path) -> tuple[list[dict], CsvInfo]:
+def read_sweep_csv(path, older: bool = False) -> tuple[list[dict], CsvInfo]:
     """The complete rows of a sweep.csv (dicts of strings, first occurrence per key).
 
     A trailing line without its newline (a kill mid-write) is dropped, and so are rows
     with the wrong number of fields or an unreadable key.  Raises SweepError when the
-    header is not :data:`COLUMNS`.  A missing or empty file has no rows.
+    header is not :data:`COLUMNS` (``older``: nor a leading part of it, what an earlier
+    version wrote, its rows then read with the columns it lacks empty; for reading a
+    finished sweep, never for resuming one).  A missing or empty file has no rows.
     """
     path = Path(path)
     info = CsvInfo()
@@ -117,15 +120,16 @@ def read_sweep_csv(path) -> tuple[list[dict], CsvInfo]:
     if not lines:
         return [], info
     header = tuple(lines[0])
-    if header != COLUMNS:
+    ok = header == COLUMNS or (older and 0 < len(header) and header == COLUMNS[:len(header)])
+    if not ok:
         raise SweepError(f"{path}: columns {', '.join(header)} are not this version's "
                          f"({', '.join(COLUMNS)}); use another --out")
     rows, seen = [], set()
     for fields in lines[1:]:
-        if len(fields) != len(COLUMNS):
+        if len(fields) != len(header):
             info.malformed += 1
             continue
-        row = dict(zip(COLUMNS, fields, strict=True))
+        row = dict(zip(COLUMNS, fields + [""] * (len(COLUMNS) - len(header)), strict=True))
         try:
             k = row_key(row)
         except (ValueError, TypeError):

@@ -75,6 +75,12 @@ def test_goal_departure_after_reaching(tiny_run):
     # and come back (examples/tiny.toml: the default end_state, "free", the paper's)
     assert m["settled_makespan_s"] > m["makespan_s"]
     assert m["max_goal_departure_m"] > 10 * tol
+    # and a sweep's row of this run carries both
+    from jaxplan.sweep_batch import SweepPoint, csv_row
+
+    row = csv_row(SweepPoint(1.0, 1.0, "tiny", 0), m)
+    assert float(row["settled_makespan_s"]) == m["settled_makespan_s"]
+    assert float(row["max_goal_departure_m"]) == m["max_goal_departure_m"]
 
 
 def test_plans_last_at_least_two_replan_periods(tiny_run):

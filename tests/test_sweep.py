@@ -106,6 +106,28 @@ def test_csv_reader_refuses_foreign_columns(tmp_path):
     p.write_text("a,b\n1,2\n")
     with pytest.raises(SweepError, match="columns"):
         read_sweep_csv(p)
+    with pytest.raises(SweepError, match="columns"):
+        read_sweep_csv(p, older=True)
+
+
+def test_csv_reader_reads_an_older_version_only_when_asked(tmp_path):
+    # an earlier version wrote the leading columns only: a finished sweep is read (the
+    # later columns empty), a resume refuses it
+    from jaxplan.sweep_csv import COLUMNS, SweepError, csv_text, read_sweep_csv
+
+    old = COLUMNS[:-2]
+    row = {c: "1" for c in COLUMNS} | {"q_obs": "1.0", "q_lim": "2.0", "scenario": "s",
+                                        "seed": "3", "error": ""}
+    lines = csv_text([row], header=True).splitlines()
+    cut = lambda line: ",".join(line.split(",")[:len(old)])  # noqa: E731
+    p = tmp_path / "sweep.csv"
+    p.write_text("\n".join(cut(x) for x in lines) + "\n")
+    with pytest.raises(SweepError, match="not this version's"):
+        read_sweep_csv(p)
+    (got,), info = read_sweep_csv(p, older=True)
+    assert info.malformed == 0
+    assert [got[c] for c in old] == [row[c] for c in old]
+    assert got[COLUMNS[-1]] == "" and got[COLUMNS[-2]] == ""
 
 
 def test_pad_robots_parks_masked_robots_far_away():

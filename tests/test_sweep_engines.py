@@ -23,7 +23,7 @@ from tests.test_sweep import SWEEP_TOML
 
 FLOAT_COLUMNS = ("min_separation_ratio", "makespan_s", "mean_time_to_goal_s", "reached_frac",
                  "waypoints_frac", "peak_speed_ratio", "converged_frac", "iterations_median",
-                 "duration_s")
+                 "duration_s", "settled_makespan_s", "max_goal_departure_m")
 
 
 def _config(text=SWEEP_TOML):
