@@ -15,12 +15,13 @@ and another robot it sees is within ``near`` (m) of clearance (centre distance m
 radii).  The clock restarts when its goal changes, while it sidesteps, and while a robot
 that has been at its goal moves away from it (``best`` follows it: a free end is passed
 at speed, and the way back is measured from the farthest point).  In a *mutual* stall
-(``mutual``: no robot near it is on its way, :func:`progressing`) the window is
-``window_mutual`` (:func:`mutual_window`: in 3-D under "auto"), once ``window`` has
-passed since its goal was set or its last sidestep (3-D circles in one plane, makespan
-/ bound: 2.84 -> 2.44 with 8 robots, 3.00 -> 2.60 with 16; a robot starting from rest,
-or turning back to its goal after a sidestep, makes little progress at first: without
-that condition random_box_20's robots sidestepped again and again, median makespan
+(``mutual``: no robot near it is on its way, :func:`progressing`) of a robot that is not
+on its way either (``moving``) the window is ``window_mutual`` (:func:`mutual_window`:
+in 3-D under "auto"), once ``window`` has passed since its goal was set or its last
+sidestep.  3-D circles in one plane, makespan / bound: 2.84 -> 2.44 with 8 robots, 3.00
+-> 2.60 with 16.  Without the two conditions the short window caught robots that were
+slow but on their way (the tests' tiny swap: 5.34 -> 6.55 s), robots starting from rest
+and robots turning back to their goals after a sidestep (random_box_20: median makespan
 8.79 -> 9.17 s, four seeds over 16 s).
 
 Resolution (:func:`planning_goals`): a robot that has been stalled for ``wait`` seconds
@@ -212,14 +213,17 @@ def progressing(others_p, others_v, others_goal, prm: DeadlockParams):
     return ok & (d > prm.progress) & (rate > prm.progress / prm.window)
 
 
-def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=None):
+def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=None,
+            moving=None):
     """One replan's stall bookkeeping.
 
     Args: ds: the state after the previous replan.  prm: DeadlockParams.  dt: () s since
     then.  p: (M, N) positions now.  goal_p: (M, N) current goals (the real ones).
     near: (M,) bool, another robot close (any of :func:`near_pairs`).  mutual: (M,) bool, no
     robot near i is on its way (:func:`progressing`): with ``prm.mutual`` a stalled
-    robot then sidesteps without ``wait`` (None: never mutual).
+    robot then sidesteps without ``wait`` (None: never mutual).  moving: (M,) bool, robot
+    i itself is on its way (:func:`progressing` of its own state): then not
+    ``window_mutual`` but ``window`` (None: not moving).
     Returns: (new DeadlockState, stalled (M,) bool, sidestep (M,) bool: sidestepping
     in this replan, started (M,) bool: a sidestep starts now).
     """
@@ -243,8 +247,10 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     # after window_mutual and the sidestep starts at once
     settled = jnp.where(new_goal | side, 0.0, ds.settled + dt)
     mut = jnp.zeros_like(near) if mutual is None else mutual & prm.mutual
-    mut = mut & (settled >= prm.window)
-    window = jnp.where(mut, jnp.minimum(prm.window_mutual, prm.window), prm.window)
+    short = mut & (settled >= prm.window)
+    if moving is not None:
+        short = short & ~moving
+    window = jnp.where(short, jnp.minimum(prm.window_mutual, prm.window), prm.window)
     stalled = (since >= window) & (d > prm.progress) & near & ~ds.occupied
     started = stalled & prm.enabled & (since >= jnp.where(mut, window, prm.window + prm.wait))
     left = jnp.where(started, prm.hold, left)

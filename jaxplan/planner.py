@@ -301,7 +301,8 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     """
     M = p.shape[0]
     preds, inflate, floor = view_predictions(fp, views)
-    ds, stalled, side, goal_p, goal_v, rest = stall_step(fp, ps, views, p, goal_p, goal_v, rest)
+    ds, stalled, side, goal_p, goal_v, rest = stall_step(fp, ps, views, p, v, goal_p, goal_v,
+                                                         rest)
     if guide is not None and fp.static is not None:
         point, use = guide_goals(*guide, fp.static, fp.radius, p, goal_p)
         use = use & ~side & fp.robot_mask
@@ -332,11 +333,12 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     return new_ps, info
 
 
-def stall_step(fp: FleetParams, ps: PlanState, views: Views, p, goal_p, goal_v, rest):
+def stall_step(fp: FleetParams, ps: PlanState, views: Views, p, v, goal_p, goal_v, rest):
     """Stall detection and the sidestep (:mod:`jaxplan.deadlock`) from each robot's own
-    view: who is near comes from ``views``.  Returns (the new DeadlockState or None,
-    stalled (M,), sidestep (M,), and the goals to plan to: goal_p, goal_v (M, N),
-    rest (M,)).  Without ``fp.deadlock`` (or ``ps.deadlock``): nothing changes."""
+    view: who is near comes from ``views``; p, v (M, N) its own state.  Returns (the new
+    DeadlockState or None, stalled (M,), sidestep (M,), and the goals to plan to: goal_p,
+    goal_v (M, N), rest (M,)).  Without ``fp.deadlock`` (or ``ps.deadlock``): nothing
+    changes."""
     M = p.shape[0]
     off = jnp.zeros((M,), bool)
     if fp.deadlock is None or ps.deadlock is None:
@@ -348,8 +350,9 @@ def stall_step(fp: FleetParams, ps: PlanState, views: Views, p, goal_p, goal_v, 
     near = jnp.any(pairs, axis=-1)
     mutual = ~jnp.any(pairs & dl.progressing(views.p, views.v, views.goal_p, fp.deadlock),
                       axis=-1)
+    own = dl.progressing(p[:, None], v[:, None], goal_p[:, None], fp.deadlock)[:, 0]
     ds, stalled, side, _ = dl.observe(ps.deadlock, fp.deadlock, fp.dt, p, goal_p, near,
-                                      mutual)
+                                      mutual, own)
     stalled, side = stalled & fp.robot_mask, side & fp.robot_mask
     ds = ds._replace(left=jnp.where(fp.robot_mask, ds.left, 0.0))
     goal_p, goal_v, rest = dl.planning_goals(ds, goal_p, goal_v, rest)

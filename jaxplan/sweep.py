@@ -201,6 +201,32 @@ _LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off
                   ("planner", "stall_window_mutual_s"): 1e4}
 
 
+# What a run does beyond what its config says.  Raise it with every change to the
+# planner, the simulation or the metrics that changes a sweep's rows without a config
+# key (a rule, a constant, a metric's definition): the sweep and tune directories carry
+# it in config.toml's first line, and one made by another revision is refused rather
+# than resumed with rows of two versions (one without the line counts as revision 0).
+BEHAVIOUR_REVISION = 1
+_REVISION = "# jaxplan behaviour revision: "
+
+
+def stamped(text: str) -> str:
+    """config.toml's text with this version's behaviour revision as its first line."""
+    return f"{_REVISION}{BEHAVIOUR_REVISION}\n{text}"
+
+
+def check_revision(path: Path, text: str, kind: str) -> None:
+    """Raise SweepError when the config.toml ``text`` at ``path`` was written by another
+    behaviour revision (:data:`BEHAVIOUR_REVISION`) than this version's."""
+    first = text.split("\n", 1)[0].strip()
+    rest = first[len(_REVISION):].strip() if first.startswith(_REVISION.strip()) else ""
+    revision = int(rest) if rest.isdigit() else 0
+    if revision != BEHAVIOUR_REVISION:
+        raise SweepError(f"{path}: this {kind} directory was made by jaxplan behaviour "
+                         f"revision {revision}, this version is {BEHAVIOUR_REVISION} (its "
+                         "runs differ where no config key says so); use another --out")
+
+
 def _guard_config(out: Path, config: Config) -> None:
     """Keep config.toml; refuse a directory made with a different config.  Under the
     file's lock: shards of one sweep start side by side in one directory."""
@@ -213,9 +239,11 @@ def _check_and_write_config(path: Path, config: Config) -> None:
     text = config_to_toml(config)
     if path.exists():
         try:
-            old = tomllib.loads(path.read_text("utf-8"))
+            raw = path.read_text("utf-8")
+            old = tomllib.loads(raw)
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
             raise SweepError(f"{path}: unreadable ({e}); use another --out") from None
+        check_revision(path, raw, "sweep")
         # compare resolved configs: a key added later with its default (written by this
         # version, absent from an older config.toml) is no difference, unless the
         # default changed the behaviour (_LEGACY_VALUES)
@@ -234,7 +262,7 @@ def _check_and_write_config(path: Path, config: Config) -> None:
                           if strip(old).get(k) != strip(new).get(k))
             raise SweepError(f"{path}: this sweep directory was made with a different config "
                              f"(differs in: {', '.join(diff)}); use another --out")
-    atomic_write_text(path, text)
+    atomic_write_text(path, stamped(text))
 
 
 # ------------------------------------------------------------------------ the CSV

@@ -68,7 +68,7 @@ from jaxplan.config import (
 )
 from jaxplan.fileio import atomic_write_text
 from jaxplan.scenarios import Scenario
-from jaxplan.sweep import BATCH_ENV, DEFAULT_BATCH
+from jaxplan.sweep import BATCH_ENV, DEFAULT_BATCH, check_revision, stamped
 from jaxplan.sweep_batch import BatchRunner, SweepPoint
 from jaxplan.sweep_csv import SweepError
 from jaxplan.world import static_rows
@@ -189,11 +189,16 @@ def _guard_config(out: Path, config: Config) -> None:
     text = config_to_toml(config)
     if path.exists():
         try:
+            raw = path.read_text("utf-8")
             old = tomllib.loads(config_to_toml(parse_config(
-                tomllib.loads(path.read_text("utf-8")), source=str(config.source))))
+                tomllib.loads(raw), source=str(config.source))))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError, ConfigError) as e:
             raise TuneError(f"{path}: not a config this version reads ({e}); use another "
                             "--out") from None
+        try:
+            check_revision(path, raw, "tune")
+        except SweepError as e:
+            raise TuneError(str(e)) from None
 
         def strip(d):
             d = {k: v for k, v in d.items() if k not in _FREE_TABLES}
@@ -207,7 +212,7 @@ def _guard_config(out: Path, config: Config) -> None:
                           if strip(old).get(k) != strip(new).get(k))
             raise TuneError(f"{path}: this tune directory was made with a different config "
                             f"(differs in: {', '.join(diff)}); use another --out")
-    atomic_write_text(path, text)
+    atomic_write_text(path, stamped(text))
 
 
 def _optuna():

@@ -12,10 +12,10 @@ DT = 0.125
 _observe = jax.jit(dl.observe)
 
 
-def _history(positions, goals, near, prm=None, mutual=None):
+def _history(positions, goals, near, prm=None, mutual=None, moving=None):
     """Run observe over a hand-made history: positions (K, M, N), goals (M, N) or
-    (K, M, N), near (K, M), mutual (K, M) or None.  Returns stalled, sidestep (K, M)
-    and the last state."""
+    (K, M, N), near (K, M), mutual and moving (K, M) or None.  Returns stalled, sidestep
+    (K, M) and the last state."""
     prm = prm or dl.default_params(enabled=False)
     positions = np.asarray(positions, float)
     K = positions.shape[0]
@@ -25,7 +25,8 @@ def _history(positions, goals, near, prm=None, mutual=None):
     for k in range(K):
         ds, stalled, side, _ = _observe(ds, prm, DT, jnp.asarray(positions[k]),
                                         jnp.asarray(goals[k]), jnp.asarray(near[k]),
-                                        None if mutual is None else jnp.asarray(mutual[k]))
+                                        None if mutual is None else jnp.asarray(mutual[k]),
+                                        None if moving is None else jnp.asarray(moving[k]))
         out_s.append(np.asarray(stalled))
         out_side.append(np.asarray(side))
     return np.array(out_s), np.array(out_side), ds
@@ -409,6 +410,17 @@ def test_a_mutual_stall_is_one_after_the_shorter_window():
     # another near robot on its way: the window and the wait as before
     stalled, side, _ = _history(pos, [[6.0, 0.0]], near, prm, mutual=np.zeros((K, 1), bool))
     assert first(stalled) == pytest.approx(5.0) and first(side) == pytest.approx(6.0)
+    # while it is itself on its way (closing on its goal at over progress / window, here
+    # 0.3 m/s: 0.15 m per 0.5 s) the window as before
+    slow = np.minimum(np.minimum(t, 3.0) + 0.3 * np.maximum(t - 3.0, 0.0), 6.0)
+    slow = slow[:, None, None] * np.array([1.0, 0.0])
+    moving = np.zeros((K, 1), bool)
+    moving[(t > 3.0) & (slow[:, 0, 0] < 5.9)] = True
+    stalled, _, _ = _history(slow, [[6.0, 0.0]], near, prm, mutual=np.ones((K, 1), bool),
+                             moving=moving)
+    assert not stalled.any()  # 0.2 m every 0.67 s: never 2 s without progress
+    stalled, _, _ = _history(slow, [[6.0, 0.0]], near, prm, mutual=np.ones((K, 1), bool))
+    assert first(stalled) == pytest.approx(3.5)  # not told it moves: 0.5 s suffice
     # from rest at the start the full window too (robots accelerating from rest)
     stand = np.zeros((K, 1, 2))
     stalled, side, _ = _history(stand, [[6.0, 0.0]], near, prm, mutual=np.ones((K, 1), bool))

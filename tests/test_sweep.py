@@ -161,28 +161,50 @@ def test_a_directory_made_with_another_config_is_refused(tmp_path):
         _guard_config(tmp_path, _config(SWEEP_TOML.replace("3.0", "4.0")))
 
 
+def test_a_directory_made_by_another_behaviour_revision_is_refused(tmp_path):
+    # config.toml's first line says which revision of what a run does made the directory
+    # (changes that no config key shows); another, or none (older versions), is refused
+    from jaxplan import sweep
+    from jaxplan.config import config_to_toml
+
+    cfg = _config()
+    sweep._guard_config(tmp_path, cfg)
+    path = tmp_path / "config.toml"
+    text = path.read_text()
+    assert text.startswith(f"# jaxplan behaviour revision: {sweep.BEHAVIOUR_REVISION}\n")
+    assert parse_config(tomllib.loads(text), source="c.toml") == parse_config(
+        tomllib.loads(config_to_toml(cfg)), source="c.toml")  # still the config
+    sweep._guard_config(tmp_path, cfg)  # the same revision: resumes
+    for other in (config_to_toml(cfg),
+                  text.replace(f"revision: {sweep.BEHAVIOUR_REVISION}",
+                               f"revision: {sweep.BEHAVIOUR_REVISION + 1}")):
+        path.write_text(other)
+        with pytest.raises(sweep.SweepError, match="behaviour revision"):
+            sweep._guard_config(tmp_path, cfg)
+
+
 def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
     import tomllib
 
     from jaxplan.config import config_to_toml
-    from jaxplan.sweep import SweepError, _guard_config
+    from jaxplan.sweep import SweepError, _guard_config, stamped
 
     cfg = _config()
     doc = tomllib.loads(config_to_toml(cfg))
     assert doc["planner"].pop("max_neighbors") == 0  # as an older version wrote it
     import tomli_w
 
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     _guard_config(tmp_path, cfg)  # same config: accepted
     doc["planner"]["max_neighbors"] = 4
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
     # a config.toml written before coast_samples existed ran without coast constraints
     # (the new default is 8): resuming it is a different config
     doc["planner"]["max_neighbors"] = 0
     doc["planner"].pop("coast_samples")
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
     _guard_config(tmp_path, dataclasses.replace(
@@ -190,26 +212,26 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
     # nor one written before 3-D fleets sidestepped under "auto" (sidestep_wait_3d_s)
     doc["planner"]["coast_samples"] = cfg.planner.coast_samples
     doc["planner"].pop("sidestep_wait_3d_s")
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
     # nor one written before a mutual stall sidestepped at once (sidestep_mutual_at_once)
     doc["planner"]["sidestep_wait_3d_s"] = cfg.planner.sidestep_wait_3d_s
     doc["planner"].pop("sidestep_mutual_at_once")
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
     # nor one written before a mutual stall had its own window (stall_window_mutual_s)
     doc["planner"]["sidestep_mutual_at_once"] = True
     doc["planner"].pop("stall_window_mutual_s")
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
     doc["planner"]["stall_window_mutual_s"] = 0.5  # the same config again: accepted
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     _guard_config(tmp_path, cfg)
     doc["planner"]["no_such_key"] = 1
-    (tmp_path / "config.toml").write_text(tomli_w.dumps(doc))
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     with pytest.raises(SweepError, match="not a config this version reads"):
         _guard_config(tmp_path, cfg)
 

@@ -269,6 +269,15 @@ def test_a_directory_made_with_another_config_is_refused(interrupted_and_resumed
     other = dataclasses.replace(cfg, planner=dataclasses.replace(cfg.planner, k_p=4.0))
     with pytest.raises(TuneError, match="differs in: planner"):
         run_tune(other, out, progress=False, echo=None)
+    # and one made by another behaviour revision (tune/config.toml's first line)
+    path = out / "config.toml"
+    text = path.read_text()
+    try:
+        path.write_text(text.split("\n", 1)[1])  # as a version without the line wrote it
+        with pytest.raises(TuneError, match="behaviour revision 0"):
+            run_tune(cfg, out, progress=False, echo=None)
+    finally:
+        path.write_text(text)
 
 
 @pytest.mark.slow  # a `jaxplan tune` child SIGKILLed, another resuming (~100 s): make test-slow

@@ -77,8 +77,8 @@ DEFAULT_SIDESTEP_WAIT_3D_S = 4.0         # s more a 3-D robot stays stalled befo
 # ... unless no robot near it is on its way (a mutual stall, none waiting for another to
 # pass): then at once (3-D circles in one plane: makespan / bound 3.99 -> 2.84, 8 robots)
 DEFAULT_SIDESTEP_MUTUAL_AT_ONCE = True
-# ... and a mutual stall is one after this window (not within stall_window_s of the goal
-# being set or the last sidestep; jaxplan.deadlock.observe)
+# ... and, in 3-D, a mutual stall of a robot not on its way itself is one after this
+# window (not within stall_window_s of the goal being set or the last sidestep)
 DEFAULT_STALL_WINDOW_MUTUAL_S = 0.5
 
 DEFAULT_BACKEND = "ideal"
