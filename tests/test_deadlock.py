@@ -487,3 +487,25 @@ def test_a_robot_broadcasts_the_end_of_the_plan_it_flies():
     quiet = dl.default_params(enabled=True, announce=False)
     ds_q = dl.broadcast(ds, quiet, planned, gv, prest, stop, braking, kept)
     np.testing.assert_array_equal(dl.published_goals(ds_q, goal, gv, prest)[0], goal)
+
+
+@pytest.mark.slow  # two 3-D closed loops of 8 robots (~60 s on 2 cores): `make test-slow`
+def test_a_3d_ring_in_one_plane_takes_at_most_2_5x_the_bound():
+    """experiments/deadlock/circle_3d.toml (8 robots in one horizontal plane swap through
+    the centre): 2.44x the straight-line bound with the short window of a mutual stall,
+    2.84x with the 2 s window."""
+    import tomllib
+
+    from jaxplan.config import parse_config
+    from jaxplan.experiment import run
+    from tests._proc import ROOT
+
+    path = ROOT / "experiments" / "deadlock" / "circle_3d.toml"
+    doc = tomllib.loads(path.read_text())
+    ratio = {}
+    for window in (0.5, 2.0):
+        doc.setdefault("planner", {})["stall_window_mutual_s"] = window
+        m = run(parse_config(doc, source=str(path))).metrics
+        assert m["success"] and m["collisions"] == 0
+        ratio[window] = m["makespan_over_bound"]
+    assert ratio[0.5] <= 2.5 < ratio[2.0], ratio
