@@ -18,11 +18,14 @@ at speed, and the way back is measured from the farthest point).  In a *mutual* 
 (``mutual``: no robot near it is on its way, :func:`progressing`) of a robot that is not
 on its way either (``moving``) the window is ``window_mutual`` (:func:`mutual_window`:
 in 3-D under "auto"), once ``window`` has passed since its goal was set or its last
-sidestep.  3-D circles in one plane, makespan / bound: 2.84 -> 2.44 with 8 robots, 3.00
--> 2.60 with 16.  Without the two conditions the short window caught robots that were
-slow but on their way (the tests' tiny swap: 5.34 -> 6.55 s), robots starting from rest
-and robots turning back to their goals after a sidestep (random_box_20: median makespan
-8.79 -> 9.17 s, four seeds over 16 s).
+sidestep; the sidestep such a stall starts lasts ``hold_mutual`` (:func:`mutual_hold`).
+3-D circles in one plane, makespan / bound, 8 / 16 robots: 2.84 / 3.00 with the window and
+the hold, 2.44 / 2.60 with window_mutual 0.5 s, 2.36 / 2.48 with 0.25 s and hold_mutual
+1.5 s (the defaults; random_box_20's median makespan 8.82 -> 9.11 s).  Without the two
+conditions the short window caught robots that were slow but on their way (the tests'
+tiny swap: 5.34 -> 6.55 s), robots starting from rest and robots turning back to their
+goals after a sidestep (random_box_20: median makespan 8.79 -> 9.17 s, four seeds over
+16 s).
 
 Resolution (:func:`planning_goals`): a robot that has been stalled for ``wait`` seconds
 (:func:`sidestep_wait`: none in the plane, a few in 3-D, where most stalls are a robot
@@ -92,6 +95,14 @@ def mutual_window(resolution: str, dim: int, window: float, window_mutual: float
     return float(window_mutual) if resolution == "auto" and dim == 3 else float(window)
 
 
+def mutual_hold(resolution: str, dim: int, hold: float, hold_mutual: float) -> float:
+    """How long a sidestep that starts in a short-window mutual stall lasts
+    (:func:`observe`): ``hold_mutual`` for a 3-D fleet under "auto", else ``hold`` (the
+    fleets for which :func:`mutual_window` shortens the window)."""
+    _check(resolution)
+    return float(hold_mutual) if resolution == "auto" and dim == 3 else float(hold)
+
+
 def announces_plan_ends(resolution: str, dim: int) -> bool:
     """Whether each robot broadcasts the end of the plan it flies (:func:`broadcast`)
     rather than its goal: with the sidestep, except a 3-D fleet under "auto", which
@@ -110,7 +121,8 @@ class DeadlockParams(NamedTuple):
     to the right of the goal direction.  wait: () s a robot stays stalled before it
     sidesteps.  announce: () bool, broadcast the end of the plan flown (:func:`broadcast`).
     mutual: () bool, no wait in a mutual stall (:func:`observe`).  window_mutual: () s
-    without progress before a robot in a mutual stall is stalled.
+    without progress before a robot in a mutual stall is stalled.  hold_mutual: () s of
+    a sidestep that starts in such a stall (after ``window_mutual``).
     """
 
     enabled: jax.Array
@@ -124,21 +136,24 @@ class DeadlockParams(NamedTuple):
     announce: jax.Array
     mutual: jax.Array
     window_mutual: jax.Array
+    hold_mutual: jax.Array
 
 
 def default_params(enabled: bool = True, window: float = 2.0, progress: float = 0.2,
                    near: float = 1.0, hold: float = 2.0, step: float = 1.0,
                    angle_deg: float = 60.0, wait: float = 0.0,
                    announce: bool | None = None, mutual: bool = True,
-                   window_mutual: float | None = None) -> DeadlockParams:
+                   window_mutual: float | None = None,
+                   hold_mutual: float | None = None) -> DeadlockParams:
     """DeadlockParams from plain numbers (the config's defaults); announce None: as
-    ``enabled``; window_mutual None: ``window``."""
+    ``enabled``; window_mutual None: ``window``; hold_mutual None: ``hold``."""
     f = lambda x: jnp.asarray(float(x))  # noqa: E731
     announce = enabled if announce is None else announce
     return DeadlockParams(jnp.asarray(bool(enabled)), f(window), f(progress), f(near),
                           f(hold), f(step), f(jnp.deg2rad(angle_deg)), f(wait),
                           jnp.asarray(bool(announce)), jnp.asarray(bool(mutual)),
-                          f(window if window_mutual is None else window_mutual))
+                          f(window if window_mutual is None else window_mutual),
+                          f(hold if hold_mutual is None else hold_mutual))
 
 
 class DeadlockState(NamedTuple):
@@ -253,7 +268,7 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     window = jnp.where(short, jnp.minimum(prm.window_mutual, prm.window), prm.window)
     stalled = (since >= window) & (d > prm.progress) & near & ~ds.occupied
     started = stalled & prm.enabled & (since >= jnp.where(mut, window, prm.window + prm.wait))
-    left = jnp.where(started, prm.hold, left)
+    left = jnp.where(started, jnp.where(short, prm.hold_mutual, prm.hold), left)
     side = left > 0
     # the clock restarts while sidestepping (progress is measured afresh afterwards)
     best = jnp.where(side, d, best)

@@ -25,6 +25,7 @@ from jaxplan import world_metrics as wm
 from jaxplan.config import Config, build_scenario
 from jaxplan.deadlock import (
     announces_plan_ends,
+    mutual_hold,
     mutual_window,
     resolution_enabled,
     sidestep_wait,
@@ -139,7 +140,9 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
             announce=announces_plan_ends(pc.deadlock, scenario.dim),
             mutual=pc.sidestep_mutual_at_once,
             window_mutual=mutual_window(pc.deadlock, scenario.dim, pc.stall_window_s,
-                                        pc.stall_window_mutual_s)),
+                                        pc.stall_window_mutual_s),
+            hold_mutual=mutual_hold(pc.deadlock, scenario.dim, pc.sidestep_hold_s,
+                                    pc.sidestep_hold_mutual_s)),
     )
 
 

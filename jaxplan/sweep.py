@@ -198,7 +198,8 @@ _FREE_TABLES = ("sweep", "tune", "name", "description")
 _LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off",
                   ("planner", "sidestep_wait_3d_s"): 1e4,
                   ("planner", "sidestep_mutual_at_once"): False,
-                  ("planner", "stall_window_mutual_s"): 1e4}
+                  ("planner", "stall_window_mutual_s"): 1e4,
+                  ("planner", "sidestep_hold_mutual_s"): 2.0}
 
 
 # What a run does beyond what its config says.  Raise it with every change to the
@@ -206,7 +207,7 @@ _LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off
 # key (a rule, a constant, a metric's definition): the sweep and tune directories carry
 # it in config.toml's first line, and one made by another revision is refused rather
 # than resumed with rows of two versions (one without the line counts as revision 0).
-BEHAVIOUR_REVISION = 1
+BEHAVIOUR_REVISION = 2
 _REVISION = "# jaxplan behaviour revision: "
 
 

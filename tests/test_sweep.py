@@ -227,7 +227,13 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
     (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     with pytest.raises(SweepError, match="different config.*planner"):
         _guard_config(tmp_path, cfg)
-    doc["planner"]["stall_window_mutual_s"] = 0.5  # the same config again: accepted
+    doc["planner"]["stall_window_mutual_s"] = cfg.planner.stall_window_mutual_s
+    # nor one written before such a stall's sidestep had its own hold (sidestep_hold_mutual_s)
+    doc["planner"].pop("sidestep_hold_mutual_s")
+    (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
+    with pytest.raises(SweepError, match="different config.*planner"):
+        _guard_config(tmp_path, cfg)
+    doc["planner"]["sidestep_hold_mutual_s"] = 1.5  # the same config again: accepted
     (tmp_path / "config.toml").write_text(stamped(tomli_w.dumps(doc)))
     _guard_config(tmp_path, cfg)
     doc["planner"]["no_such_key"] = 1
