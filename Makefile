@@ -41,8 +41,8 @@ paper: $(STAMP)
 sweep: $(STAMP)
 	$(VENV)/bin/jaxplan sweep experiments/sweeps/qobs_qlim.toml
 
-# docs/RESULTS.md: the paper scenarios (both backends), collision-mode, fault and stall tables
-# (resumable; about an hour on 2 cores: see experiments/studies.py)
+# docs/RESULTS.md: the paper scenarios (both backends), collision-mode, fault, world and stall tables
+# (resumable; about two hours on 2 cores: see experiments/studies.py)
 studies: $(STAMP)
 	$(PY) experiments/studies.py paper --out sweeps/studies
 	$(PY) experiments/studies.py collision --out sweeps/studies
