@@ -98,6 +98,17 @@ def _check_whole(out: Path) -> set[str]:
     return present
 
 
+def test_sigkill_at_the_first_write_leaves_whole_files(crash_env):
+    # the fast half of the test below (make test): killed as soon as the run directory
+    # has its first entry, it holds whole files or none
+    d, cfg, env = crash_env
+    out = d / "first"
+    _kill_when(jaxplan_cmd("run", cfg, out), env, d, lambda: out.is_dir() and any(out.iterdir()))
+    first = _check_whole(out)
+    assert not {f"figures/{f}" for f in FIGURES} <= first, first
+
+
+@pytest.mark.slow  # three `jaxplan run` children (~34 s on 2 cores): make test-slow
 def test_sigkill_mid_write_leaves_whole_files_and_a_rerun_completes(crash_env):
     d, cfg, env = crash_env
     out = d / "run"
