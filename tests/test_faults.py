@@ -75,6 +75,7 @@ def test_frozen_robot_silent_or_stale(stale):
     assert float(views.age[0, 1]) == 0.0
 
 
+@pytest.mark.slow  # two closed loops with every fault on, their own program (~20 s): make test-slow
 def test_run_with_faults_is_reproducible_and_finite(tmp_path):
     from jaxplan.experiment import run
     from tests.conftest import TINY_TOML

@@ -164,6 +164,7 @@ half_extents = [0.1, 2.125]
 """
 
 
+@pytest.mark.slow  # a planar closed loop with the guide, its own program (~14 s): make test-slow
 def test_a_ground_robot_behind_a_wall_goes_through_the_opening():
     """A robot whose goal lies straight behind a wall, the opening 2.8 m off to the
     side: with the guide it reaches its goal, collision-free, by the exact checks."""
