@@ -91,16 +91,21 @@ def mutual_window(resolution: str, dim: int, window: float, window_mutual: float
     fleet sidesteps at its first stall, after ``window``: with 0.5 s for mutual stalls
     too, planar box 20 (20 seeds) left one robot short of its goal at 30 s in 2 seeds
     (100% with ``window``), though planar circles arrived sooner."""
-    _check(resolution)
-    return float(window_mutual) if resolution == "auto" and dim == 3 else float(window)
+    return float(window_mutual if _short_mutual(resolution, dim) else window)
 
 
 def mutual_hold(resolution: str, dim: int, hold: float, hold_mutual: float) -> float:
     """How long a sidestep that starts in a short-window mutual stall lasts
     (:func:`observe`): ``hold_mutual`` for a 3-D fleet under "auto", else ``hold`` (the
     fleets for which :func:`mutual_window` shortens the window)."""
+    return float(hold_mutual if _short_mutual(resolution, dim) else hold)
+
+
+def _short_mutual(resolution: str, dim: int) -> bool:
+    """Whether a fleet uses the mutual stall's own window and hold: a 3-D fleet under
+    "auto" (:func:`mutual_window`, :func:`mutual_hold`)."""
     _check(resolution)
-    return float(hold_mutual) if resolution == "auto" and dim == 3 else float(hold)
+    return resolution == "auto" and dim == 3
 
 
 def announces_plan_ends(resolution: str, dim: int) -> bool:

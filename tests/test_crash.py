@@ -98,14 +98,18 @@ def _check_whole(out: Path) -> set[str]:
     return present
 
 
-def test_sigkill_at_the_first_write_leaves_whole_files(crash_env):
-    # the fast half of the test below (make test): killed as soon as the run directory
-    # has its first entry, it holds whole files or none
-    d, cfg, env = crash_env
-    out = d / "first"
+def _kill_at_first_entry(d: Path, cfg, env, out: Path) -> None:
+    """Kill a `jaxplan run` into ``out`` as soon as the directory has its first entry
+    (config.toml's temp file): it holds whole files or none, and not the figures."""
     _kill_when(jaxplan_cmd("run", cfg, out), env, d, lambda: out.is_dir() and any(out.iterdir()))
     first = _check_whole(out)
     assert not {f"figures/{f}" for f in FIGURES} <= first, first
+
+
+def test_sigkill_at_the_first_write_leaves_whole_files(crash_env):
+    # the fast half of the test below (make test)
+    d, cfg, env = crash_env
+    _kill_at_first_entry(d, cfg, env, d / "first")
 
 
 @pytest.mark.slow  # three `jaxplan run` children (~34 s on 2 cores): make test-slow
@@ -113,9 +117,7 @@ def test_sigkill_mid_write_leaves_whole_files_and_a_rerun_completes(crash_env):
     d, cfg, env = crash_env
     out = d / "run"
     # 1. kill as soon as the run directory has its first entry (config.toml's temp file)
-    _kill_when(jaxplan_cmd("run", cfg, out), env, d, lambda: out.is_dir() and any(out.iterdir()))
-    first = _check_whole(out)
-    assert not {f"figures/{f}" for f in FIGURES} <= first, first
+    _kill_at_first_entry(d, cfg, env, out)
     # 2. kill as soon as a new entry appears in figures/ (the first figure being written)
     figs = out / "figures"
     before = _listing(figs)

@@ -159,10 +159,9 @@ class PlannerConfig:
     sidestep_hold_s, sidestep_step_m, sidestep_angle_deg, sidestep_wait_3d_s,
     sidestep_mutual_at_once, stall_window_mutual_s, sidestep_hold_mutual_s: stall detection
     (always on) and the sidestep that resolves a stall (jaxplan/deadlock.py); auto:
-    sidestep, in 3-D only
-    after sidestep_wait_3d_s more of the stall, unless (sidestep_mutual_at_once) no robot
-    near is on its way: a mutual stall, detected after stall_window_mutual_s, whose
-    sidestep lasts sidestep_hold_mutual_s.
+    sidestep, in 3-D only after sidestep_wait_3d_s more of the stall, unless
+    (sidestep_mutual_at_once) no robot near is on its way: a mutual stall, detected after
+    stall_window_mutual_s, whose sidestep lasts sidestep_hold_mutual_s.
     guide "auto" | "on" | "off": a robot whose straight line to its goal passes through
     an obstacle plans to a point of the shortest way round instead (jaxplan/guide.py);
     auto: on in a world with obstacles.
