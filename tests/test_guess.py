@@ -117,23 +117,26 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
     free = NLPStructure(collision="none")
     G = solve.guess.rest_shape(st)
     pos, goals = antipodal(10, 5.0, np.random.default_rng(0))
-    objective = jax.jit(nlp.objective, static_argnums=2)  # the 300 candidates below
-    boundary = jax.jit(nlp.boundary_vector)
+    # every candidate of a robot in one call: (shape, T) pairs, the shapes outer
+    objective = jax.jit(jax.vmap(nlp.objective, in_axes=(0, None, None)), static_argnums=2)
+    boundary = jax.jit(jax.vmap(nlp.boundary_vector, in_axes=(None, 0)))
     for rest in (False, True):
         P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), goals, rest=rest)
         x0 = np.asarray(jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P))
         for i in range(3):
             p = index_params(P, i)
             pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
-            best, arg = np.inf, None
+            Ts = float(pred.duration) * solve.guess.GUESS_T_FACTORS
+            e = np.asarray(boundary(p, jnp.asarray(Ts)))  # (K, ...)
+            cands, xs = [], []
             for a in solve.guess.GUESS_SHAPES:
-                for f in solve.guess.GUESS_T_FACTORS:
-                    T = float(pred.duration) * f
-                    z = 0.0 if rest else a * (G @ np.asarray(boundary(p, T))).T
-                    x = np.concatenate([np.broadcast_to(z, (3, st.nz)).ravel(), [np.log(T)]])
-                    v = float(objective(x, p, free))
-                    if v < best:
-                        best, arg = v, (a, T)
+                for k, T in enumerate(Ts):
+                    z = 0.0 if rest else a * (G @ e[k]).T
+                    xs.append(np.concatenate([np.broadcast_to(z, (3, st.nz)).ravel(),
+                                              [np.log(T)]]))
+                    cands.append((a, T))
+            vals = np.asarray(objective(jnp.asarray(np.stack(xs)), p, free))
+            best, arg = float(vals[np.argmin(vals)]), cands[int(np.argmin(vals))]
             kc = nlp.kind_constants(p.rest, free)
             got = float(nlp.evaluate_terms(jnp.asarray(x0[i]), p, free, kc, None, 1.0))
             np.testing.assert_allclose(got, best, rtol=1e-12)
@@ -142,9 +145,7 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
                 assert np.all(x0[i, :-1] == 0.0)
             else:
                 assert arg[0] == 0.5  # the halfway shape wins here
-                Ts = float(pred.duration) * solve.guess.GUESS_T_FACTORS
-                v0 = [float(objective(nlp.pack(jnp.zeros((3, st.nz)), jnp.log(T)), p, free))
-                      for T in Ts]
+                v0 = np.asarray(objective(jnp.asarray(np.stack(xs[:len(Ts)])), p, free))
                 assert arg[1] < Ts[int(np.argmin(v0))]  # shorter than the free path's T
     # the bisection of the grid finds its minimum: random NLPs (moving starts, rest and
     # free ends, two segments), all candidates evaluated at once here

@@ -2,6 +2,7 @@
 goals, exact separation of the executed pieces)."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -194,13 +195,18 @@ def test_braking_plan_stops(rng):
 def test_resample_is_exact(rng):
     c = rng.normal(size=(5, 1, 3, 6))
     one = Trajectory.from_normalized(c, rng.uniform(0.5, 3, 5), coast=True)
+    t = np.linspace(0, 4, 33)
+
+    @functools.partial(jax.jit, static_argnums=(1, 2))  # one program each, not op by op
+    def both(tr, S, D):
+        r = resample(tr, S, D)
+        return r.coeffs, [(r.sample(t, d), tr.sample(t, d)) for d in range(3)]
+
     for S, D in [(1, 5), (3, 5), (2, 7)]:
-        r = resample(one, S, D)
-        assert r.coeffs.shape == (5, S, 3, D + 1)
-        t = np.linspace(0, 4, 33)
-        for d in range(3):
-            np.testing.assert_allclose(np.asarray(r.sample(t, d)), np.asarray(one.sample(t, d)),
-                                       atol=1e-10)
+        coeffs, pairs = both(one, S, D)
+        assert coeffs.shape == (5, S, 3, D + 1)
+        for got, want in pairs:
+            np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-10)
 
 
 def test_fresh_views_shapes():
@@ -244,7 +250,7 @@ def test_plan_violation_matches_a_direct_computation():
     mask = jnp.asarray([[False, True], [True, False]])
     rad = jnp.asarray([0.25, 0.25])
     orad = jnp.full((2, 2), 0.3)
-    got = np.asarray(plan_violation(plans, others, rad, orad, mask))
+    got = np.asarray(jax.jit(plan_violation)(plans, others, rad, orad, mask))  # not op by op
     t = np.arange(1, CHECK_SAMPLES + 1) * CHECK_HORIZON_S / CHECK_SAMPLES
     d = np.hypot(t - 1.2, 0.1)
     np.testing.assert_allclose(got[0], max(0.0, np.max(0.55 - d)), rtol=1e-12)
@@ -331,7 +337,8 @@ def test_a_silent_robot_is_held_where_it_can_have_braked_to():
     views = views._replace(age=jnp.full((2, 2), STALE_AFTER_S + 0.5))
     lim = Limits(jnp.full(2, 2.0), jnp.full(2, 4.0), jnp.full(2, 12.0))
     fp = SimpleNamespace(dt=jnp.asarray(0.125), prediction_weight=jnp.asarray(6.0), limits=lim)
-    preds, inflate, floor = view_predictions(fp, views)
+    # jitted: the same ops run eagerly cost ~3x longer (each op its own program)
+    preds, inflate, floor = jax.jit(lambda vw: view_predictions(fp, vw))(views)
     held = np.asarray(preds.evaluate(0.0))[1, 0]  # robot 1's view of robot 0
     # reference: robot 0's own path, its prediction for one period, then its braking plan
     pr = predict_arrays(p[:1], v[:1], a[:1], goal[:1], jnp.zeros((1, 3)), jnp.zeros((1, 3)),
@@ -339,7 +346,7 @@ def test_a_silent_robot_is_held_where_it_can_have_braked_to():
     t1 = np.linspace(0.0, 0.125, 50)
     path = [np.asarray(pr.evaluate(jnp.asarray(t1)[:, None]))[:, 0]]
     s1 = [x[0][None] for x in pr.state_at(jnp.asarray([0.125]))]
-    brake = braking_plan(*s1, lim.a_max[:1], PlannerStructure())
+    brake = jax.jit(lambda *a: braking_plan(*a, PlannerStructure()))(*s1, lim.a_max[:1])
     t2 = np.linspace(0.0, 3.0, 300)
     path.append(np.asarray(brake.evaluate(jnp.asarray(t2)[:, None]))[:, 0])
     d = np.linalg.norm(np.concatenate(path) - held, axis=-1)
