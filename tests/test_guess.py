@@ -57,8 +57,10 @@ def test_initial_guess_swerve_is_the_best_of_its_candidates(segments):
     P = stack_params(ps)
     grid = np.asarray(jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P))
     got = np.asarray(solve.initial_guess_batch(P, st))
-    merit = jax.jit(lambda x, p: nlp.merit(x, p, st, nlp.kind_constants(p.rest, st),
-                                             solve.zero_multipliers(p, st), 10.0))
+    # a lane's candidates in one call, on the batch's padded lane (one program for all)
+    merit = jax.jit(jax.vmap(lambda x, p: nlp.merit(x, p, st, nlp.kind_constants(p.rest, st),
+                                                    solve.zero_multipliers(p, st), 10.0),
+                             in_axes=(0, None)))
     swerved = 0
     for i, p in enumerate(ps):
         x = grid[i]
@@ -71,7 +73,7 @@ def test_initial_guess_swerve_is_the_best_of_its_candidates(segments):
                 z = x[:-1].reshape(3, st.nz).copy()
                 z[:, 0] += sg * 1.5 * rho * w
                 cands.append(np.concatenate([z.ravel(), x[-1:]]))
-        vals = [float(merit(jnp.asarray(c), p)) for c in cands]
+        vals = np.asarray(merit(jnp.asarray(np.stack(cands)), index_params(P, i)))
         k = int(np.argmin(vals))
         np.testing.assert_allclose(got[i], cands[k], rtol=1e-12, atol=1e-12)
         swerved += k > 0
@@ -95,14 +97,14 @@ def test_initial_guess_head_on_pair_passes_on_the_right():
     assert dz[0, 1] < -0.5 and dz[1, 1] > 0.5  # robot 0 flies +x: right is -y; 1: +y
     assert np.allclose(dz[:, [0, 2]], 0.0)
 
+    @jax.jit  # one program, not op by op
     def min_distance(x):
-        ts = np.linspace(0.0, float(np.exp(np.max(x[:, -1]))), 400)[:, None]
-        p = [np.asarray(nlp.to_trajectory(jnp.asarray(x[i]), index_params(P, i), st)
-                        .evaluate(ts)) for i in range(2)]
-        return float(np.min(np.linalg.norm(p[0] - p[1], axis=-1)))
+        ts = jnp.linspace(0.0, jnp.exp(jnp.max(x[:, -1])), 400)[:, None]
+        p = [nlp.to_trajectory(x[i], index_params(P, i), st).evaluate(ts) for i in range(2)]
+        return jnp.min(jnp.linalg.norm(p[0] - p[1], axis=-1))
 
     rho = 0.5  # fleet_params: radius 0.25 each
-    assert min_distance(grid) < 0.1 < rho < 2.0 * rho < min_distance(x0)
+    assert float(min_distance(grid)) < 0.1 < rho < 2.0 * rho < float(min_distance(x0))
 
 
 def test_initial_guess_is_the_best_candidate_of_the_grid():
