@@ -85,12 +85,32 @@ def sidestep_wait(resolution: str, dim: int, wait_3d: float) -> float:
     return float(wait_3d) if resolution == "auto" and dim == 3 else 0.0
 
 
+# the stall window of ``stall_window_s = "auto"`` (:func:`stall_window`), s
+STALL_WINDOW_PLANAR_S = 1.0
+STALL_WINDOW_3D_S = 2.0
+
+
+def stall_window(window: float | str, dim: int) -> float:
+    """The stall window (s) of a fleet in ``dim`` dimensions: ``[planner] stall_window_s``
+    as given, or for "auto" (the default) STALL_WINDOW_PLANAR_S in the plane and
+    STALL_WINDOW_3D_S in 3-D.  A planar crowd stalls often and resolves each stall only
+    by its sidestep: on planar box 20 (`jaxplan sweep`, seeds 0-79) 1 s arrived in every
+    run (median makespan 15.6 s), where 2 s left a robot short of its goal at 30 s or
+    collided in 4 of the 60 seeds 0-59 (median 17.9 s).  A 3-D fleet mostly
+    leaves a stall through the third dimension by itself, and waits
+    (:func:`sidestep_wait`)."""
+    if window == "auto":
+        return STALL_WINDOW_PLANAR_S if dim == 2 else STALL_WINDOW_3D_S
+    return float(window)
+
+
 def mutual_window(resolution: str, dim: int, window: float, window_mutual: float) -> float:
     """The window of a mutual stall (:func:`observe`): ``window_mutual`` for a 3-D fleet
-    under "auto" (the fleets that wait before they sidestep), else ``window``.  A planar
-    fleet sidesteps at its first stall, after ``window``: with 0.5 s for mutual stalls
-    too, planar box 20 (20 seeds) left one robot short of its goal at 30 s in 2 seeds
-    (100% with ``window``), though planar circles arrived sooner."""
+    under "auto" (the fleets that wait before they sidestep), else ``window`` (the
+    fleet's stall window, :func:`stall_window`).  A planar fleet sidesteps at its first
+    stall, after ``window``: with 0.5 s for mutual stalls and 2 s for the others, planar
+    box 20 (20 seeds) left one robot short of its goal at 30 s in 2 seeds (100% with 2 s
+    for both), though planar circles arrived sooner."""
     return float(window_mutual if _short_mutual(resolution, dim) else window)
 
 
@@ -287,6 +307,21 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     new = ds._replace(goal=goal_kept, best=best, since=since, left=left, sub=sub,
                       arrived=arrived, settled=settled)
     return new, stalled, side, started
+
+
+def idle(ds: DeadlockState, prm: DeadlockParams, p, goal_p, near):
+    """(M,) bool: robots that have made no progress to their goal (goal_p (M, N), p (M, N)
+    now) for the stall window with no robot near (near (M,)), not at it, not beside an
+    occupied goal and not sidestepping, where the resolution is enabled (ds: the state
+    :func:`observe` returned).  Nothing holds such a robot but its own plan: a plan
+    whose motion keeps starting later, replan after replan, each warm-started from the
+    last (planar circle 24, seed 9: a robot 4.3 m from a free goal held still from
+    12 s to the end, every solve converged).  The planner starts its next solve from
+    the cold guesses (``PlanState.retry``)."""
+    d = jnp.linalg.norm(goal_p - p, axis=-1)
+    d = jnp.where(jnp.isfinite(d), d, 0.0)
+    return (prm.enabled & (ds.since >= prm.window) & (d > prm.progress) & ~near
+            & ~ds.occupied & ~(ds.left > 0))
 
 
 def sidestep_goal(p, goal_p, prm: DeadlockParams):

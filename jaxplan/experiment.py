@@ -30,6 +30,7 @@ from jaxplan.deadlock import (
     resolution_enabled,
     sidestep_wait,
     stall_summary,
+    stall_window,
 )
 from jaxplan.deadlock import default_params as deadlock_params
 from jaxplan.faults import FaultParams, no_faults
@@ -123,6 +124,7 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
     lim = Limits(jnp.asarray(scenario.v_max), jnp.asarray(scenario.a_max),
                  jnp.asarray(scenario.j_max))
     M = scenario.start.shape[0]
+    window = stall_window(pc.stall_window_s, scenario.dim)
     settings = solve.SolverSettings(max_iters=pc.max_iters, tol_feasibility=pc.tol,
                                     tol_complementarity=pc.tol)
     return FleetParams(
@@ -133,13 +135,13 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
         accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
         static=_static(scenario, n_static),
         deadlock=deadlock_params(
-            enabled=resolution_enabled(pc.deadlock, scenario.dim), window=pc.stall_window_s,
+            enabled=resolution_enabled(pc.deadlock, scenario.dim), window=window,
             progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
             step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg,
             wait=sidestep_wait(pc.deadlock, scenario.dim, pc.sidestep_wait_3d_s),
             announce=announces_plan_ends(pc.deadlock, scenario.dim),
             mutual=pc.sidestep_mutual_at_once,
-            window_mutual=mutual_window(pc.deadlock, scenario.dim, pc.stall_window_s,
+            window_mutual=mutual_window(pc.deadlock, scenario.dim, window,
                                         pc.stall_window_mutual_s),
             hold_mutual=mutual_hold(pc.deadlock, scenario.dim, pc.sidestep_hold_s,
                                     pc.sidestep_hold_mutual_s)),

@@ -13,6 +13,7 @@ Vectors (:data:`Position`) take their expected length from the validation contex
 from __future__ import annotations
 
 import difflib
+import math
 from collections.abc import Sequence
 from typing import Annotated, Any
 
@@ -25,6 +26,7 @@ __all__ = [
     "show",
     "one_of",
     "number",
+    "auto_or_number",
     "integer",
     "string",
     "END_STATES",
@@ -88,6 +90,21 @@ def number(**bounds: float) -> Any:
     """A finite float (an integer is taken too, a boolean is not) within ``bounds``
     (gt, ge, lt, le; give them as floats: messages print them with ``:g``)."""
     return Annotated[float, Strict(), Field(allow_inf_nan=False, **bounds)]
+
+
+def auto_or_number(gt: float, le: float) -> Any:
+    """"auto" (a default that depends on the fleet, resolved where it is used) or a
+    finite number in (gt, le] (an integer is taken too, a boolean is not)."""
+    def check(v: Any) -> Any:
+        if isinstance(v, str) and v == "auto":
+            return v
+        if (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                or not gt < v <= le):
+            raise FieldProblem(f'expected "auto" or a number > {gt:g} and <= {le:g}, '
+                               f"got {show(v)}")
+        return float(v)
+
+    return Annotated[Any, BeforeValidator(check)]
 
 
 def integer(**bounds: int) -> Any:

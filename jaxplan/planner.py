@@ -182,9 +182,9 @@ class PlanState(NamedTuple):
     that multipliers follow their robot when the selection changes.  static_ids: (M, Ks)
     int32, the static row (index into ``FleetParams.static``) in each static-row slot of
     the NLPs (-1: none yet), so that the static rows' multipliers follow their row when
-    the selection (``max_static_rows``) changes.  retry: (M,) bool,
-    the robot's last solve was not accepted: its next solve starts from the cold guesses
-    (:func:`solve_fleet`).  deadlock: each robot's stall memory
+    the selection (``max_static_rows``) changes.  retry: (M,) bool, the robot's last solve
+    was not accepted, or it is idle (:func:`jaxplan.deadlock.idle`): its next solve starts
+    from the cold guesses (:func:`solve_fleet`).  deadlock: each robot's stall memory
     (:class:`jaxplan.deadlock.DeadlockState`).
     """
 
@@ -301,8 +301,8 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
     """
     M = p.shape[0]
     preds, inflate, floor = view_predictions(fp, views)
-    ds, stalled, side, goal_p, goal_v, rest = stall_step(fp, ps, views, p, v, goal_p, goal_v,
-                                                         rest)
+    ds, stalled, side, idle, goal_p, goal_v, rest = stall_step(fp, ps, views, p, v, goal_p,
+                                                               goal_v, rest)
     if guide is not None and fp.static is not None:
         point, use = guide_goals(*guide, fp.static, fp.radius, p, goal_p)
         use = use & ~side & fp.robot_mask
@@ -325,7 +325,7 @@ def replan(fp: FleetParams, ps: PlanState, views: Views, p, v, a, goal_p, goal_v
                           plan.evaluate(plan.duration), fallback == BRAKING,
                           fallback == KEPT_PREVIOUS)
     new_ps = PlanState(plan, jnp.ones((M,), bool), new_mult, new_pen, idx.astype(jnp.int32),
-                       sidx, (fallback != ACCEPTED) & fp.robot_mask, ds)
+                       sidx, ((fallback != ACCEPTED) | idle) & fp.robot_mask, ds)
     info = ReplanInfo(sol.status, sol.iterations, sol.objective, sol.eq_violation,
                       sol.ineq_violation, fallback.astype(jnp.int32),
                       goal_moved & fp.robot_mask, stalled & fp.robot_mask,
@@ -342,7 +342,7 @@ def stall_step(fp: FleetParams, ps: PlanState, views: Views, p, v, goal_p, goal_
     M = p.shape[0]
     off = jnp.zeros((M,), bool)
     if fp.deadlock is None or ps.deadlock is None:
-        return ps.deadlock, off, off, goal_p, goal_v, rest
+        return ps.deadlock, off, off, off, goal_p, goal_v, rest
     eye = jnp.eye(M, dtype=bool)
     mask = views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
     pairs = dl.near_pairs(p, views.p, fp.radius, jnp.broadcast_to(fp.radius, (M, M)), mask,
@@ -353,13 +353,14 @@ def stall_step(fp: FleetParams, ps: PlanState, views: Views, p, v, goal_p, goal_
     own = dl.progressing(p[:, None], v[:, None], goal_p[:, None], fp.deadlock)[:, 0]
     ds, stalled, side, _ = dl.observe(ps.deadlock, fp.deadlock, fp.dt, p, goal_p, near,
                                       mutual, own)
+    idle = dl.idle(ds, fp.deadlock, p, goal_p, near) & fp.robot_mask
     stalled, side = stalled & fp.robot_mask, side & fp.robot_mask
     ds = ds._replace(left=jnp.where(fp.robot_mask, ds.left, 0.0))
     goal_p, goal_v, rest = dl.planning_goals(ds, goal_p, goal_v, rest)
     if fp.static is not None:  # a sidestep sub-goal stays out of obstacles and walls
         goal_p = jnp.where(side[:, None], clear_of_static(goal_p, fp.radius, fp.static),
                            goal_p)
-    return ds, stalled, side, goal_p, goal_v, rest
+    return ds, stalled, side, idle, goal_p, goal_v, rest
 
 
 def view_predictions(fp: FleetParams, views: Views):

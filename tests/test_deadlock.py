@@ -63,6 +63,42 @@ def test_stall_detection_on_a_hand_made_history():
     assert side_s.sum() == 0
 
 
+def test_a_robot_held_by_its_own_plan_is_idle():
+    # robot 0 stands 3 m short of its goal with nobody near: idle from t = window on
+    # (its next solve starts cold); robot 1 stands likewise with a robot near: stalled,
+    # not idle; robot 2 stands at its goal; robot 3 moves to its goal at 0.5 m/s.  With
+    # the resolution off no robot is idle.
+    K = 40
+    t = DT * np.arange(K)
+    pos = np.zeros((K, 4, 2))
+    pos[:, 1, 1] = 5.0
+    pos[:, 2, 0] = 7.0
+    pos[:, 3, 0] = 0.5 * t
+    goals = np.array([[3.0, 0.0], [3.0, 5.0], [7.05, 0.0], [30.0, 0.0]])
+    near = np.zeros((K, 4), bool)
+    near[:, 1] = True
+    _idle = jax.jit(dl.idle)
+    for enabled in (True, False):
+        prm = dl.default_params(enabled=enabled, window=1.0, hold=100.0)
+        ds = dl.initial_state(jnp.asarray(pos[0]))
+        idle = []
+        for k in range(K):
+            ds, stalled, side, _ = _observe(ds, prm, DT, jnp.asarray(pos[k]),
+                                            jnp.asarray(goals), jnp.asarray(near[k]))
+            idle.append(np.asarray(_idle(ds, prm, jnp.asarray(pos[k]), jnp.asarray(goals),
+                                         jnp.asarray(near[k]))))
+        idle = np.array(idle)
+        if not enabled:
+            assert not idle.any()
+            continue
+        # the first replan sets the goal (clock 0); idle once 1 s has passed since
+        first = int(np.argmax(idle[:, 0]))
+        assert t[first] == pytest.approx(1.0)
+        assert idle[first:, 0].all() and not idle[:first, 0].any()
+        assert not idle[:, 1:].any()
+        assert bool(side[1])  # robot 1 stalled and sidesteps instead
+
+
 def test_a_robot_turning_back_after_passing_its_goal_is_not_stalled():
     # robot 0 passes its goal (x = 2) at 1 m/s, goes on 1.5 m beyond, turns and comes
     # back at 0.3 m/s with a robot near: no stall (its way back is measured from where it
@@ -333,7 +369,11 @@ def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
                                    ({"stall_window_mutual_s": 0.75}, 3, True, 4.0),
                                    ({"sidestep_hold_mutual_s": 0.5}, 3, True, 4.0),
                                    ({"sidestep_hold_mutual_s": 0.5, "deadlock": "sidestep"},
-                                    3, True, 0.0)):
+                                    3, True, 0.0),
+                                   ({"stall_window_s": 3}, 2, True, 0.0),
+                                   ({"stall_window_s": 3.0}, 3, True, 4.0),
+                                   ({"stall_window_s": "auto", "deadlock": "off"}, 2, False,
+                                    0.0)):
         sc = {"kind": "antipodal_circle", "count": 2, "dim": dim}
         if dim == 2:
             sc["vehicles"] = ["ground"]
@@ -344,16 +384,25 @@ def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
         # the plan ends are broadcast with the sidestep, but not in 3-D under auto
         assert bool(prm.announce) is (on and (dim == 2 or "deadlock" in planner))
         assert bool(prm.mutual) is planner.get("sidestep_mutual_at_once", True)
+        # the window: as given, else ("auto") 1 s in the plane and 2 s in 3-D
+        window = planner.get("stall_window_s", "auto")
+        window = (1.0 if dim == 2 else 2.0) if window == "auto" else window
+        assert float(prm.window) == window
         # the mutual window and hold in a 3-D fleet under auto (else the window and hold)
         mutual_window = dim == 3 and planner.get("deadlock", "auto") == "auto"
         assert float(prm.window_mutual) == (planner.get("stall_window_mutual_s", 0.25)
-                                            if mutual_window else 2.0)
+                                            if mutual_window else window)
         assert float(prm.hold_mutual) == (planner.get("sidestep_hold_mutual_s", 1.5)
                                           if mutual_window else 2.0)
     with pytest.raises(ConfigError, match="sidestep_mutual_at_once"):
         parse_config({"planner": {"sidestep_mutual_at_once": 1}})
     with pytest.raises(ConfigError, match="stall_window_mutual_s"):
         parse_config({"planner": {"stall_window_mutual_s": 0.0}})
+    for bad in ("fast", "AUTO", True, 0, -1.0, 1e5, float("nan")):
+        with pytest.raises(ConfigError, match='stall_window_s: expected "auto" or a number'):
+            parse_config({"planner": {"stall_window_s": bad}})
+    assert dl.stall_window("auto", 2) == 1.0 and dl.stall_window("auto", 3) == 2.0
+    assert dl.stall_window(0.5, 2) == dl.stall_window(0.5, 3) == 0.5
     with pytest.raises(ConfigError, match="sidestep_hold_mutual_s"):
         parse_config({"planner": {"sidestep_hold_mutual_s": -1.0}})
 

@@ -26,6 +26,7 @@ from jaxplan.fields import (
     Position,
     PositiveLength,
     VehicleName,
+    auto_or_number,
     integer,
     number,
     one_of,
@@ -67,7 +68,9 @@ DEFAULT_DEADLOCK = "auto"                # "auto" | "sidestep" | "off" (detectio
 # swap 20% longer, 6.43 s against 5.34 s)
 # the way round a wall (jaxplan/guide.py): "auto" (on in a world with obstacles) | "on" | "off"
 DEFAULT_GUIDE = "auto"
-DEFAULT_STALL_WINDOW_S = 2.0             # s without progress before a robot is stalled
+# s without progress before a robot is stalled; "auto": 1 s for a planar fleet, 2 s in
+# 3-D (jaxplan.deadlock.stall_window)
+DEFAULT_STALL_WINDOW_S = "auto"
 DEFAULT_STALL_PROGRESS_M = 0.2           # m: less progress than this over the window
 DEFAULT_STALL_NEAR_M = 1.0               # m of clearance to another robot that counts as near
 DEFAULT_SIDESTEP_HOLD_S = 2.0            # s a stalled robot sidesteps
@@ -161,7 +164,8 @@ class PlannerConfig:
     (always on) and the sidestep that resolves a stall (jaxplan/deadlock.py); auto:
     sidestep, in 3-D only after sidestep_wait_3d_s more of the stall, unless
     (sidestep_mutual_at_once) no robot near is on its way: a mutual stall, detected after
-    stall_window_mutual_s, whose sidestep lasts sidestep_hold_mutual_s.
+    stall_window_mutual_s, whose sidestep lasts sidestep_hold_mutual_s.  stall_window_s
+    "auto": 1 s for a planar fleet, 2 s in 3-D (jaxplan.deadlock.stall_window).
     guide "auto" | "on" | "off": a robot whose straight line to its goal passes through
     an obstacle plans to a point of the shortest way round instead (jaxplan/guide.py);
     auto: on in a world with obstacles.
@@ -186,7 +190,7 @@ class PlannerConfig:
     coast_samples: integer(ge=0, le=MAX_COAST_SAMPLES) = DEFAULT_COAST_SAMPLES
     solver_pool: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_SOLVER_POOL
     deadlock: string(one_of(RESOLUTIONS)) = DEFAULT_DEADLOCK
-    stall_window_s: number(gt=0.0, le=1e4) = DEFAULT_STALL_WINDOW_S
+    stall_window_s: auto_or_number(gt=0.0, le=1e4) = DEFAULT_STALL_WINDOW_S
     stall_progress_m: number(gt=0.0, le=1e3) = DEFAULT_STALL_PROGRESS_M
     stall_near_m: number(ge=0.0, le=1e3) = DEFAULT_STALL_NEAR_M
     sidestep_hold_s: number(gt=0.0, le=1e4) = DEFAULT_SIDESTEP_HOLD_S
