@@ -95,8 +95,8 @@ def stall_window(window: float | str, dim: int) -> float:
     as given, or for "auto" (the default) STALL_WINDOW_PLANAR_S in the plane and
     STALL_WINDOW_3D_S in 3-D.  A planar crowd stalls often and resolves each stall only
     by its sidestep: on planar box 20 (`jaxplan sweep`, seeds 0-79) 1 s arrived in every
-    run (median makespan 15.6 s), where 2 s left a robot short of its goal at 30 s or
-    collided in 4 of the 60 seeds 0-59 (median 17.9 s).  A 3-D fleet mostly
+    run (median makespan 15.5 s), where 2 s left a robot short of its goal at 30 s or
+    collided in 4 of the 60 seeds 0-59 (median 17.6 s).  A 3-D fleet mostly
     leaves a stall through the third dimension by itself, and waits
     (:func:`sidestep_wait`)."""
     if window == "auto":
