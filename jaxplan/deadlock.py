@@ -253,6 +253,12 @@ def progressing(others_p, others_v, others_goal, prm: DeadlockParams):
     return ok & (d > prm.progress) & (rate > prm.progress / prm.window)
 
 
+def _goal_distance(p, goal_p):
+    """(M,) m from p to goal_p ((M, N) each); 0 where not finite."""
+    d = jnp.linalg.norm(goal_p - p, axis=-1)
+    return jnp.where(jnp.isfinite(d), d, 0.0)
+
+
 def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=None,
             moving=None):
     """One replan's stall bookkeeping.
@@ -267,8 +273,7 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     Returns: (new DeadlockState, stalled (M,) bool, sidestep (M,) bool: sidestepping
     in this replan, started (M,) bool: a sidestep starts now).
     """
-    d = jnp.linalg.norm(goal_p - p, axis=-1)
-    d = jnp.where(jnp.isfinite(d), d, 0.0)
+    d = _goal_distance(p, goal_p)
     new_goal = ~jnp.all(goal_p == ds.goal, axis=-1)
     left = jnp.maximum(ds.left - dt, 0.0)
     left = jnp.where(new_goal, 0.0, left)
@@ -318,8 +323,7 @@ def idle(ds: DeadlockState, prm: DeadlockParams, p, goal_p, near):
     last (planar circle 24, seed 9: a robot 4.3 m from a free goal held still from
     12 s to the end, every solve converged).  The planner starts its next solve from
     the cold guesses (``PlanState.retry``)."""
-    d = jnp.linalg.norm(goal_p - p, axis=-1)
-    d = jnp.where(jnp.isfinite(d), d, 0.0)
+    d = _goal_distance(p, goal_p)
     return (prm.enabled & (ds.since >= prm.window) & (d > prm.progress) & ~near
             & ~ds.occupied & ~(ds.left > 0))
 
