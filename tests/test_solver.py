@@ -171,7 +171,7 @@ def test_pool_size_does_not_change_results():
     assert np.sum(ref.status == solve.CONVERGED) >= 40
     for pool in (7,):  # 7 lanes a step: 50 = 7 x 7 + 1, slots refilled to the last
         sol12 = jax.device_get(solve.solve_batch(P, x0, S1, short, pool=pool))
-        for f in ("status", "iterations", "penalty"):
+        for f in ("status", "iterations", "penalty", "evaluations"):
             np.testing.assert_array_equal(getattr(sol12, f), getattr(ref12, f))
         for f in ("x", "traj", "objective", "eq_violation", "ineq_violation", "multipliers"):
             for a, b in zip(jax.tree.leaves(getattr(sol12, f)), jax.tree.leaves(getattr(ref12, f)),
@@ -186,6 +186,13 @@ def test_pool_size_does_not_change_results():
     one = jax.device_get(_one(ps[5], jnp.full(S1.n_x, jnp.nan)))
     np.testing.assert_allclose(one.x, ref.x[5], rtol=1e-9, atol=1e-9)
     assert one.iterations == ref.iterations[5] and ref.status[5] == solve.CONVERGED
+    assert one.evaluations == ref.evaluations[5]
+    # an iteration's base point is an evaluation, and a converged lane was evaluated at
+    # its last iterate too (where the tests passed)
+    assert np.all(ref.evaluations >= ref.iterations)
+    conv = ref.status == solve.CONVERGED
+    assert np.all(ref.evaluations[conv] >= ref.iterations[conv] + 1)
+    assert np.sum(ref.evaluations) > np.sum(ref.iterations) + np.sum(conv)  # some trials
     # a batch of <= LOCKSTEP_MAX lanes starts in lockstep, then hands its stragglers to
     # the slots: the same lanes again
     n = 20
@@ -194,6 +201,41 @@ def test_pool_size_does_not_change_results():
     sol = jax.device_get(solve.solve_batch(sub(P), x0[:n], S1, pool=3))
     assert max(sol.iterations) > 2 * np.median(sol.iterations)  # stragglers for the slots
     _assert_same_lanes(sol, sub(ref))
+
+
+@pytest.mark.parametrize("B, pool", [(10, 2), (10, 4), (20, 3), (7, 7), (40, 2), (40, 12),
+                                     (33, 5)])
+def test_pool_steps_replays_the_pool(B, pool):
+    """solve.pool_steps (the benchmark's count of a solve's steps from its lanes'
+    evaluations) against the pool itself: solve.pool._pooled run with a step whose
+    lanes each end after a given number of evaluations, its steps counted.  Batches of
+    at most LOCKSTEP_MAX lanes (lockstep first) and larger ones; lanes that need no
+    evaluation too."""
+    from jaxplan.solve.alsqp import State, is_active
+    from jaxplan.solve.pool import _pooled
+
+    rng = np.random.default_rng(B * 100 + pool)
+    need = rng.integers(0, 25, size=B)
+    need[rng.integers(0, B)] = 60  # a straggler
+    s = solve.SolverSettings(max_iters=1000)
+    z = jnp.zeros((B,))
+    st = State(**{f: z for f in State._fields})._replace(
+        it=z.astype(jnp.int32), evals=z.astype(jnp.int32), base=z.astype(bool),
+        done=jnp.asarray(need == 0))
+    steps = []
+
+    def step(st, target):
+        jax.debug.callback(lambda: steps.append(1))
+        act = is_active(st, s)
+        ev = st.evals + act
+        return st._replace(evals=ev, done=st.done | (ev >= target))
+
+    out = jax.jit(lambda st, t: _pooled(st, t, step, pool, s) if pool < B else
+                  jax.lax.while_loop(lambda c: jnp.any(~c.done), lambda c: step(c, t), st))(
+        st, jnp.asarray(need, jnp.int32))
+    jax.block_until_ready(out)
+    np.testing.assert_array_equal(out.evals, need)  # every lane ran to its end
+    assert len(steps) == sum(solve.pool_steps(need, pool))
 
 
 _tb_derivs = jax.jit(lambda x, p, st, m, mu: nlp.merit_derivs(

@@ -256,9 +256,68 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
         P, mult = nlps(pos, vel, acc, sol)
         x0 = ws(tr, P)
         fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu)
-        sol, ms = _timed(fn, P, x0, mult, sol.penalty, repeats=reps)
-        cases.append(dict(P=P, x0=x0, sol=jax.device_get(sol), ms=ms))
+        mu = sol.penalty
+        sol, ms = _timed(fn, P, x0, mult, mu, repeats=reps)
+        cases.append(dict(P=P, x0=x0, sol=jax.device_get(sol), ms=ms, mult=mult, mu=mu))
     return structure, cases, compile_s, cpu_per_wall
+
+
+def _lanes_of(case, lanes):
+    cut = lambda t: jax.tree.map(lambda a: jnp.asarray(a)[lanes], t)
+    return cut(case["P"]), cut(case["x0"]), cut(case["mult"]), cut(case["mu"])
+
+
+def _step_us(structure, settings, case, lanes, shards: int = 1, others: bool = True,
+             reps: int = 5) -> float:
+    """Mean us of one solver step holding the lanes ``lanes`` of a warm case (dealt over
+    ``shards`` devices as solve_batch deals them), along their own iterations: the lanes
+    solved in lockstep (pool = the lanes per device), the median time over the steps
+    (the most evaluations of a lane; the solve's set-up and results included).  With
+    ``others`` False the same NLPs without the other robots (their slots cut)."""
+    P, x0, mult, mu = _lanes_of(case, lanes)
+    if not others:
+        P = P._replace(others=jax.tree.map(lambda a: a[:, :0], P.others),
+                       other_mask=P.other_mask[:, :0], other_radius=P.other_radius[:, :0])
+        mult = mult._replace(collision=mult.collision[..., :0])
+    fn = lambda: solve.solve_batch(P, x0, structure, settings, mult, mu,
+                                   pool=-(-len(lanes) // shards), shards=shards)
+    sol, ms = _timed(fn, repeats=reps)
+    return 1e3 * ms / max(1, int(np.max(sol.evaluations)))
+
+
+def _time_split(structure, settings, cases, pool=None, shards=None) -> dict:
+    """Where a fleet replan's time goes (the warm ``cases`` of :func:`_fleet_cases`):
+    each lane's evaluations (Solution.evaluations); the steps of the busiest device
+    (solve.pool_steps: steps holding every lane of the device, steps of ``pool`` slots);
+    the mean cost of a step of each kind along real iterations, every device busy
+    (:func:`_step_us`), and the time these predict against the time measured; the cost
+    of a slot step without the other robots' terms."""
+    B = int(np.size(cases[0]["sol"].status))
+    shards = solve.default_shards(B) if shards is None else shards
+    per = -(-B // shards)
+    n_others = cases[0]["P"].other_mask.shape[-1]
+    pool = solve.default_pool(per, n_others=n_others) if pool is None else min(pool, per)
+    steps = []
+    for c in cases:
+        ev = np.asarray(c["sol"].evaluations)
+        steps.append(max((solve.pool_steps(ev[d::shards], pool) for d in range(shards)),
+                         key=sum))
+    c = cases[0]
+    cost = functools.partial(_step_us, structure, settings, c, shards=shards)
+    cost_all = cost(np.arange(per * shards)[:B]) if any(a for a, _ in steps) else 0.0
+    first = np.arange(pool * shards)  # `pool` lanes on each device
+    cost_pool, cost_bare = cost(first), cost(first, others=False)
+    pred = [(a * cost_all + b * cost_pool) / 1e3 for a, b in steps]
+    ev = [np.asarray(c["sol"].evaluations) for c in cases]
+    med = lambda xs: float(statistics.median(xs))
+    return dict(lanes_per_device=per, pool=pool, shards=shards, others_per_nlp=n_others,
+                evaluations_per_replan=med([int(e.sum()) for e in ev]),
+                evaluations_lane_median=med([float(np.median(e)) for e in ev]),
+                evaluations_lane_max=int(max(e.max() for e in ev)),
+                lockstep_steps=med([a for a, _ in steps]), slot_steps=med([b for _, b in steps]),
+                step_us_all_lanes=cost_all, step_us_pool=cost_pool,
+                step_us_pool_without_others=cost_bare,
+                predicted_ms=med(pred), measured_ms=med([c["ms"] for c in cases]))
 
 
 def _cpu_s() -> float:
@@ -380,6 +439,8 @@ def compare(kind: str, reps: int = 3, steps: int = WARM_STEPS, workers: int = 1)
         "repeats": reps, "warm_replans": steps, "workers": workers,
         "loadavg_1min": __import__("os").getloadavg()[0],
     }
+    if kind == "product" and workers == 1:  # where the time goes (the product's targets)
+        out["fleet10"]["time_split"] = _time_split(structure, nlp_setup(kind)[1], cases[1:])
     for name, r in (("ipopt10", ip), ("slsqp10", sq)):
         out[name] = dict(cold_ms=r[0]["ms"], warm_ms=med([x["ms"] for x in r[1:]]),
                          cold_callback_ms=r[0]["callback_ms"],
@@ -442,7 +503,7 @@ def product_and_paper(quick: bool = False) -> dict:
         r["whole_machine"] = compare(kind, reps, steps, workers=ncpu)
         out[kind] = r
     # 100 robots, every other robot in every NLP, the product NLP, warm (whole machine)
-    structure, cases, comp, _ = _fleet_cases("product", 100, 15.0, 1, 2, 1)
+    structure, cases, comp, _ = _fleet_cases("product", 100, 15.0, 1, 2, reps)
     it = np.concatenate([np.asarray(c["sol"].iterations) for c in cases[1:]])
     out["product"]["fleet100"] = dict(
         cold_ms=cases[0]["ms"], warm_ms=float(statistics.median(c["ms"] for c in cases[1:])),
@@ -452,6 +513,8 @@ def product_and_paper(quick: bool = False) -> dict:
         warm_iters_sum_per_replan=float(it.sum() / len(cases[1:])),
         warm_ms_per_lane_iteration=float(statistics.median(c["ms"] for c in cases[1:]))
         / float(it.sum() / len(cases[1:])))
+    out["product"]["fleet100"]["time_split"] = _time_split(structure, nlp_setup("product")[1],
+                                                           cases[1:])
     return out
 
 

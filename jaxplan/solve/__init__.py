@@ -22,6 +22,7 @@ from jaxplan.solve.pool import (
                                 POOL_CPU,
                                 POOL_CPU_FEW,
                                 default_pool,
+                                pool_steps,
                                 solve_lanes,
 )
 from jaxplan.solve.types import (
@@ -41,7 +42,7 @@ __all__ = [
     "NON_FINITE",
     "POOL_CPU", "POOL_CPU_FEW", "STATUS_NAMES", "Solution", "SolverSettings",
     "as_strong_dtypes", "default_pool", "default_shards", "direction", "directions",
-    "eigh_chunk", "initial_guess", "initial_guess_batch", "shard_lanes", "solve",
+    "eigh_chunk", "initial_guess", "initial_guess_batch", "pool_steps", "shard_lanes", "solve",
     "solve_batch", "solve_differentiable", "solve_lanes", "swerve_guess", "warm_start",
     "zero_multipliers",
 ]

@@ -116,6 +116,7 @@ class State(NamedTuple):
     stalls: jax.Array  # int32: multiplier updates in a row that hardly shrank the violation
     why: jax.Array  # int32: 0, or the status a lane stopped early with (LINE_SEARCH_FAILED,
     # INFEASIBLE)
+    evals: jax.Array  # int32: evaluations (step_lanes calls in which the lane was active)
 
 
 def next_trial(a, g_x: Multipliers, g_a: Multipliers, thr: Multipliers, overshoot):
@@ -175,7 +176,7 @@ def init_lane(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
                  alpha=F(0.0), trials=jnp.asarray(-1, jnp.int32),
                  obj0=_objective_from_merit(f0, g0, mult0, mu0, params, structure),
                  viol0=max_violation(g0), stalls=jnp.asarray(0, jnp.int32),
-                 why=jnp.asarray(0, jnp.int32))
+                 why=jnp.asarray(0, jnp.int32), evals=jnp.asarray(0, jnp.int32))
     lane = Lane(params, tau_min, nlp.prepare_others(params.others, params.other_mask))
     return lane, st0, finite_in, x0
 
@@ -332,7 +333,7 @@ def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> St
         theta=jnp.where(start, theta, st.theta), base=~(search | more), y=y_new, d=d_new,
         grad=jnp.where(search, grad_proj, st.grad), alpha=a_new,
         trials=jnp.where(search, 0, jnp.where(more, st.trials + 1, -1)).astype(jnp.int32),
-        obj0=ev.obj0, viol0=ev.viol0, stalls=ev.stalls, why=ev.why)
+        obj0=ev.obj0, viol0=ev.viol0, stalls=ev.stalls, why=ev.why, evals=st.evals + 1)
     return tree_where(is_active(st, s), new, st)  # an inactive lane is returned as is
 
 
@@ -378,7 +379,7 @@ def finish_lane(st: State, lane: Lane, finite_in, x0, structure: NLPStructure,
         x=x, traj=traj, objective=no_nan(obj), status=status, iterations=st.it,
         kkt_residual=no_nan(st.kkt), eq_violation=no_nan(eq),
         ineq_violation=no_nan(viol), multipliers=st.mult, penalty=st.mu,
-        decrement=no_nan(st.theta),
+        decrement=no_nan(st.theta), evaluations=st.evals,
     )
 
 

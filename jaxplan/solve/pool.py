@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
 from jaxplan.pytree import tree_where
@@ -109,6 +110,38 @@ def _pooled(st_all: State, lane_all: Lane, step, C: int, s: SolverSettings) -> S
     c0 = (st_all, sl0, take(st_all, sl0), take(lane_all, sl0), jnp.minimum(C, n_act),
           pos < n_act)
     return jax.lax.while_loop(cond, body, c0)[0]
+
+
+def pool_steps(evaluations, pool: int) -> tuple[int, int]:
+    """The steps :func:`solve_lanes` takes on one device for lanes that need these
+    ``evaluations`` (in lane order; ``Solution.evaluations``) with ``pool`` slots, as
+    (steps holding every lane, steps holding ``pool`` slots): the schedule of
+    :func:`_pooled` replayed on the host (a batch of at most LOCKSTEP_MAX lanes steps all
+    its lanes while more than half are active; then the slots, each finished slot taking
+    the next lane in lane order; pool >= B: every step holds all lanes).  A step costs
+    about the same whatever its lanes do, so these counts times the costs of the two kinds
+    of step are the solve's time (what `jaxplan bench solver` reports as where the time
+    goes)."""
+    e = [int(v) for v in np.asarray(evaluations).reshape(-1)]
+    B = len(e)
+    if B == 0:
+        return 0, 0
+    C = max(1, min(int(pool), B))
+    if C == B:
+        return max(e), 0
+    lock = 0
+    if B <= LOCKSTEP_MAX:  # all lanes step while more than `many` are active
+        many = max(C, B // 2)
+        while sum(v > lock for v in e) > many:
+            lock += 1
+    queue = [v - lock for v in e if v > lock]
+    slots = [0] * C  # the step at which each slot's current lane ends
+    for k, rem in enumerate(queue[:C]):
+        slots[k] = rem
+    for rem in queue[C:]:  # the first slot to free (lowest index on a tie) takes it
+        k = min(range(C), key=lambda i: (slots[i], i))
+        slots[k] += rem
+    return lock, max(slots, default=0)
 
 
 LOCKSTEP_MAX = 32  # batches up to this size start in lockstep (_pooled)

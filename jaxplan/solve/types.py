@@ -55,7 +55,10 @@ class Solution(NamedTuple):
     last derivative evaluation (= Lagrangian gradient with lam~).  eq_violation: max
     residual of the equality constraints (m, m/s, m/s^2).  ineq_violation: max(0, -g)
     (m^2 for collisions, dimensionless for hard limits).  multipliers, penalty: warm-
-    start the next solve.  decrement: last Newton decrement^2.  Never NaN: objective,
+    start the next solve.  decrement: last Newton decrement^2.  evaluations: int32, the
+    evaluations of L_A's derivatives the solve took (one per pool step in which the lane
+    was active: an iteration's base point, each line-search trial, the re-evaluation after
+    a multiplier update; docs/SOLVER.md "One evaluation per step").  Never NaN: objective,
     kkt_residual, eq_violation, ineq_violation and decrement are +inf where they cannot
     be evaluated (NON_FINITE lanes, e.g. a NaN weight or an overflowing horizon).
     """
@@ -71,6 +74,7 @@ class Solution(NamedTuple):
     multipliers: Multipliers
     penalty: jax.Array
     decrement: jax.Array
+    evaluations: jax.Array
 
 
 def max_violation(g: Multipliers):
