@@ -23,6 +23,9 @@ benchmark has always had (``fleet10``, ``slsqp10_*``, ``fleet100``, ``fleet100_k
 (:func:`obstacles_row`): the product NLP's 10-robot warm replan among 20 obstacles
 against the same fleet and arena without them, its NLPs built by the planner's
 :func:`jaxplan.planner.fleet_nlps` (each holding its ``max_static_rows`` nearest rows).
+Where the product's warm 10-robot (one core) and 100-robot replans spend their time
+(:func:`_time_split`): each lane's evaluations, the pool's steps replayed from them
+(solve.pool_steps), and the measured cost of a step, with and without the other robots.
 
 Its fleets come from :mod:`jaxplan.testing` and jaxplan/scenarios/worlds.py.
 """
@@ -263,17 +266,18 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
 
 
 def _lanes_of(case, lanes):
+    """(params, x0, multipliers, penalty) of the lanes ``lanes`` of a warm case."""
     cut = lambda t: jax.tree.map(lambda a: jnp.asarray(a)[lanes], t)
     return cut(case["P"]), cut(case["x0"]), cut(case["mult"]), cut(case["mu"])
 
 
 def _step_us(structure, settings, case, lanes, shards: int = 1, others: bool = True,
              reps: int = 5) -> float:
-    """Mean us of one solver step holding the lanes ``lanes`` of a warm case (dealt over
-    ``shards`` devices as solve_batch deals them), along their own iterations: the lanes
-    solved in lockstep (pool = the lanes per device), the median time over the steps
-    (the most evaluations of a lane; the solve's set-up and results included).  With
-    ``others`` False the same NLPs without the other robots (their slots cut)."""
+    """The cost (us) of one solver step holding the lanes ``lanes`` of a warm case (dealt
+    over ``shards`` devices as solve_batch deals them), along their own iterations: the
+    median time of their solve in lockstep (pool = the lanes per device) divided by its
+    steps (the most evaluations of a lane; the solve's set-up and results included).
+    With ``others`` False the same NLPs without the other robots (their slots cut)."""
     P, x0, mult, mu = _lanes_of(case, lanes)
     if not others:
         P = P._replace(others=jax.tree.map(lambda a: a[:, :0], P.others),
