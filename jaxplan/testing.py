@@ -130,12 +130,18 @@ _select = jax.jit(_planner.select_neighbors, static_argnums=3)
 
 
 def antipodal(M: int, radius_m: float, rng, N: int = 3):
-    """M robots on a circle (jittered in z), goals antipodal (jittered)."""
-    ang = 2 * np.pi * np.arange(M) / M + rng.uniform(-0.05, 0.05, M)
+    """M robots on a circle (jittered along it and in z), goals antipodal (jittered).
+
+    The jitters (+-0.05 rad along the circle, +-0.3 m in z and on the goals) are those
+    of 10 robots; with more robots they shrink with the spacing (x 10 / M), so that
+    neighbours start at least ~0.84 of the spacing apart (unscaled, 100 robots on a 15 m
+    circle started pairs 0.08 m apart, inside one another's radii)."""
+    k = min(1.0, 10.0 / M)
+    ang = 2 * np.pi * np.arange(M) / M + k * rng.uniform(-0.05, 0.05, M)
     pos = np.stack([radius_m * np.cos(ang), radius_m * np.sin(ang),
-                    1.5 + rng.uniform(-0.3, 0.3, M)], -1)
-    goals = np.stack([-pos[:, 0], -pos[:, 1], 1.5 + rng.uniform(-0.3, 0.3, M)], -1)
-    goals[:, :2] += rng.uniform(-0.3, 0.3, (M, 2))
+                    1.5 + k * rng.uniform(-0.3, 0.3, M)], -1)
+    goals = np.stack([-pos[:, 0], -pos[:, 1], 1.5 + k * rng.uniform(-0.3, 0.3, M)], -1)
+    goals[:, :2] += k * rng.uniform(-0.3, 0.3, (M, 2))
     return pos[:, :N], goals[:, :N]
 
 

@@ -199,23 +199,23 @@ def _product_table(r: dict) -> tuple[list[str], dict[str, str]]:
 
 
 def _split_why(t: dict) -> str:
-    """Where a replan's time goes, from benchmarks.solver._time_split's figures."""
+    """Where a replan's time goes, from benchmarks.solver._time_split's accounting."""
     parts = []
     if t["lockstep_steps"]:
         parts.append(f"{t['lockstep_steps']:g} steps of all {t['lanes_per_device']} lanes at "
-                     f"{t['step_us_all_lanes']:.0f} us")
+                     f"{t['step_us_all_lanes']:.0f} us "
+                     f"({t['step_us_all_lanes_without_others']:.0f} us without the others)")
     if t["slot_steps"]:
         parts.append(f"{t['slot_steps']:g} steps of {t['pool']} slots at "
-                     f"{t['step_us_pool']:.0f} us")
-    where = "the busier device takes " if t["shards"] > 1 else ""
-    share = 1.0 - t["step_us_pool_without_others"] / max(t["step_us_pool"], 1e-9)
+                     f"{t['step_us_pool']:.0f} us "
+                     f"({t['step_us_pool_without_others']:.0f} us without the others)")
+    parts.append(f"{_ms(t['fixed_ms'])} for the call without iterations (set-up, one "
+                 "evaluation of L_A per lane, the report)")
+    where = "the busier device: " if t["shards"] > 1 else ""
     return (f"{t['evaluations_per_replan']:.0f} evaluations per replan (per lane median "
-            f"{t['evaluations_lane_median']:g}, max {t['evaluations_lane_max']}); "
-            f"{where}{' and '.join(parts)}: {_ms(t['predicted_ms'])} predicted, "
-            f"{_ms(t['measured_ms'])} measured; the {t['others_per_nlp']} other robots' terms "
-            f"are {max(share, 0.0):.0%} of a {t['pool']}-lane step "
-            f"({t['step_us_pool_without_others']:.0f} us without them), the rest is the "
-            "step's fixed cost")
+            f"{t['evaluations_lane_median']:g}, max {t['evaluations_lane_max']}); {where}"
+            + ", ".join(parts) + f"; a step without the {t['others_per_nlp']} other robots' "
+            "terms is the NLP's own derivatives, its Newton step and the step's bookkeeping")
 
 
 def _warm_why(f: dict, load) -> str:
@@ -232,10 +232,7 @@ def _warm_why(f: dict, load) -> str:
 def _fleet100_why(g: dict) -> str:
     if "time_split" in g:
         t = g["time_split"]
-        longest = t["evaluations_lane_max"] * t["step_us_pool"] / 1e3
-        return (f"{_ms(g['warm_ms'])}: " + _split_why(t)
-                + f"; the longest lane alone is {t['evaluations_lane_max']} steps "
-                  f"({_ms(longest)})")
+        return f"{_ms(g['warm_ms'])}: " + _split_why(t)
     return (f"{_ms(g['warm_ms'])}: {g['warm_iters_sum_per_replan']:.0f} lane-iterations per "
             f"replan (median {g['warm_iters_median']:.0f} per lane) at "
             f"{1e3 * g['warm_ms_per_lane_iteration']:.0f} us each, each lane's NLP holding "

@@ -265,63 +265,62 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
     return structure, cases, compile_s, cpu_per_wall
 
 
-def _lanes_of(case, lanes):
-    """(params, x0, multipliers, penalty) of the lanes ``lanes`` of a warm case."""
-    cut = lambda t: jax.tree.map(lambda a: jnp.asarray(a)[lanes], t)
-    return cut(case["P"]), cut(case["x0"]), cut(case["mult"]), cut(case["mu"])
+def _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps):
+    """(Solution, ms, ms of the same call allowed no iteration) of solve_batch: the second
+    is the call's fixed part (setting the lanes up, reporting them; the settings are
+    traced, so it is the same program)."""
+    fn = lambda s: solve.solve_batch(P, x0, structure, s, mult, mu, pool=pool, shards=shards)
+    sol, ms = _timed(fn, settings, repeats=reps)
+    _, ms0 = _timed(fn, settings._replace(max_iters=0), repeats=reps)
+    return sol, ms, ms0
 
 
-def _step_us(structure, settings, case, lanes, shards: int = 1, others: bool = True,
-             reps: int = 5) -> float:
-    """The cost (us) of one solver step holding the lanes ``lanes`` of a warm case (dealt
-    over ``shards`` devices as solve_batch deals them), along their own iterations: the
-    median time of their solve in lockstep (pool = the lanes per device) divided by its
-    steps (the most evaluations of a lane; the solve's set-up and results included).
-    With ``others`` False the same NLPs without the other robots (their slots cut)."""
-    P, x0, mult, mu = _lanes_of(case, lanes)
-    if not others:
-        P = P._replace(others=jax.tree.map(lambda a: a[:, :0], P.others),
-                       other_mask=P.other_mask[:, :0], other_radius=P.other_radius[:, :0])
-        mult = mult._replace(collision=mult.collision[..., :0])
-    fn = lambda: solve.solve_batch(P, x0, structure, settings, mult, mu,
-                                   pool=-(-len(lanes) // shards), shards=shards)
-    sol, ms = _timed(fn, repeats=reps)
-    return 1e3 * ms / max(1, int(np.max(sol.evaluations)))
-
-
-def _time_split(structure, settings, cases, pool=None, shards=None) -> dict:
-    """Where a fleet replan's time goes (the warm ``cases`` of :func:`_fleet_cases`):
-    each lane's evaluations (Solution.evaluations); the steps of the busiest device
-    (solve.pool_steps: steps holding every lane of the device, steps of ``pool`` slots);
-    the mean cost of a step of each kind along real iterations, every device busy
-    (:func:`_step_us`), and the time these predict against the time measured; the cost
-    of a slot step without the other robots' terms."""
-    B = int(np.size(cases[0]["sol"].status))
-    shards = solve.default_shards(B) if shards is None else shards
-    per = -(-B // shards)
-    n_others = cases[0]["P"].other_mask.shape[-1]
-    pool = solve.default_pool(per, n_others=n_others) if pool is None else min(pool, per)
-    steps = []
-    for c in cases:
-        ev = np.asarray(c["sol"].evaluations)
-        steps.append(max((solve.pool_steps(ev[d::shards], pool) for d in range(shards)),
-                         key=sum))
+def _time_split(structure, settings, cases, reps: int = 5) -> dict:
+    """Where a fleet replan's time goes, accounted on the first of the warm ``cases`` of
+    :func:`_fleet_cases` (solve_batch's default pool and devices): its time = the call's
+    fixed part (the same call allowed no iteration) + its steps x the mean cost of a step.
+    The steps are those of the busiest device, replayed from each lane's evaluations
+    (Solution.evaluations, solve.pool_steps): steps holding every lane of the device
+    (lockstep) and steps of ``pool`` slots.  A lockstep step's cost comes from the same
+    lanes solved in lockstep alone (pool = the lanes), a slot step's from the rest of the
+    time; and the same accounting on the NLPs without the other robots (their slots cut:
+    other iterations, their own steps; the same pool) gives a step's cost without their
+    terms."""
     c = cases[0]
-    cost = functools.partial(_step_us, structure, settings, c, shards=shards)
-    cost_all = cost(np.arange(per * shards)[:B]) if any(a for a, _ in steps) else 0.0
-    first = np.arange(pool * shards)  # `pool` lanes on each device
-    cost_pool, cost_bare = cost(first), cost(first, others=False)
-    pred = [(a * cost_all + b * cost_pool) / 1e3 for a, b in steps]
-    ev = [np.asarray(c["sol"].evaluations) for c in cases]
-    med = lambda xs: float(statistics.median(xs))
+    P, x0, mult, mu = c["P"], c["x0"], c["mult"], c["mu"]
+    B = int(np.size(c["sol"].status))
+    shards = solve.default_shards(B)
+    per = -(-B // shards)
+    n_others = P.other_mask.shape[-1]
+
+    def steps_of(sol, pool):
+        ev = np.asarray(sol.evaluations)
+        return max((solve.pool_steps(ev[d::shards], pool) for d in range(shards)), key=sum)
+
+    def account(P, mult, pool):
+        sol, ms, ms0 = _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps)
+        lock, slots = steps_of(sol, pool)
+        c_all = 0.0
+        if lock:  # the lockstep steps' cost: the lanes solved in lockstep alone
+            sol_l, ms_l, ms0_l = _accounted(structure, settings, P, x0, mult, mu, per, shards,
+                                            reps)
+            c_all = max(ms_l - ms0_l, 0.0) / max(1, steps_of(sol_l, per)[0])
+        c_slot = max(ms - ms0 - lock * c_all, 0.0) / max(1, slots)
+        return sol, ms, ms0, lock, slots, c_all, c_slot
+
+    pool = solve.default_pool(per, n_others=n_others)
+    sol, ms, ms0, lock, slots, c_all, c_slot = account(P, mult, pool)
+    bare = P._replace(others=jax.tree.map(lambda a: a[:, :0], P.others),
+                      other_mask=P.other_mask[:, :0], other_radius=P.other_radius[:, :0])
+    bare_acc = account(bare, mult._replace(collision=mult.collision[..., :0]), pool)
+    ev = np.asarray(sol.evaluations)
     return dict(lanes_per_device=per, pool=pool, shards=shards, others_per_nlp=n_others,
-                evaluations_per_replan=med([int(e.sum()) for e in ev]),
-                evaluations_lane_median=med([float(np.median(e)) for e in ev]),
-                evaluations_lane_max=int(max(e.max() for e in ev)),
-                lockstep_steps=med([a for a, _ in steps]), slot_steps=med([b for _, b in steps]),
-                step_us_all_lanes=cost_all, step_us_pool=cost_pool,
-                step_us_pool_without_others=cost_bare,
-                predicted_ms=med(pred), measured_ms=med([c["ms"] for c in cases]))
+                evaluations_per_replan=int(ev.sum()),
+                evaluations_lane_median=float(np.median(ev)),
+                evaluations_lane_max=int(ev.max()), lockstep_steps=lock, slot_steps=slots,
+                fixed_ms=ms0, step_us_all_lanes=1e3 * c_all, step_us_pool=1e3 * c_slot,
+                step_us_pool_without_others=1e3 * bare_acc[6],
+                step_us_all_lanes_without_others=1e3 * bare_acc[5], measured_ms=ms)
 
 
 def _cpu_s() -> float:
@@ -444,7 +443,8 @@ def compare(kind: str, reps: int = 3, steps: int = WARM_STEPS, workers: int = 1)
         "loadavg_1min": __import__("os").getloadavg()[0],
     }
     if kind == "product" and workers == 1:  # where the time goes (the product's targets)
-        out["fleet10"]["time_split"] = _time_split(structure, nlp_setup(kind)[1], cases[1:])
+        out["fleet10"]["time_split"] = _time_split(structure, nlp_setup(kind)[1], cases[1:],
+                                                   reps)
     for name, r in (("ipopt10", ip), ("slsqp10", sq)):
         out[name] = dict(cold_ms=r[0]["ms"], warm_ms=med([x["ms"] for x in r[1:]]),
                          cold_callback_ms=r[0]["callback_ms"],
@@ -518,7 +518,7 @@ def product_and_paper(quick: bool = False) -> dict:
         warm_ms_per_lane_iteration=float(statistics.median(c["ms"] for c in cases[1:]))
         / float(it.sum() / len(cases[1:])))
     out["product"]["fleet100"]["time_split"] = _time_split(structure, nlp_setup("product")[1],
-                                                           cases[1:])
+                                                           cases[1:], reps)
     return out
 
 
