@@ -231,8 +231,7 @@ def _warm_why(f: dict, load) -> str:
 
 def _fleet100_why(g: dict) -> str:
     if "time_split" in g:
-        t = g["time_split"]
-        return f"{_ms(g['warm_ms'])}: " + _split_why(t)
+        return f"{_ms(g['warm_ms'])}: " + _split_why(g["time_split"])
     return (f"{_ms(g['warm_ms'])}: {g['warm_iters_sum_per_replan']:.0f} lane-iterations per "
             f"replan (median {g['warm_iters_median']:.0f} per lane) at "
             f"{1e3 * g['warm_ms_per_lane_iteration']:.0f} us each, each lane's NLP holding "

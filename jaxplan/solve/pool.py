@@ -119,9 +119,9 @@ def pool_steps(evaluations, pool: int) -> tuple[int, int]:
     :func:`_pooled` replayed on the host (a batch of at most LOCKSTEP_MAX lanes steps all
     its lanes while more than half are active; then the slots, each finished slot taking
     the next lane in lane order; pool >= B: every step holds all lanes).  A step costs
-    about the same whatever its lanes do, so these counts times the costs of the two kinds
-    of step are the solve's time (what `jaxplan bench solver` reports as where the time
-    goes)."""
+    about the same whatever its lanes do, so the call's fixed part plus these counts times
+    the costs of the two kinds of step are the solve's time (`jaxplan bench solver`'s
+    account of where the time goes)."""
     e = [int(v) for v in np.asarray(evaluations).reshape(-1)]
     B = len(e)
     if B == 0:
