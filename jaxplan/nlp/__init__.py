@@ -66,8 +66,9 @@ fixed tau:  P_g = b_g(tau) + z C_g(tau)^T  (C_g the same for every axis; constan
 on the coast rows).  So, with the local gradient and Hessian of F_k in its few
 features (autodiff of the scalar functions: ``_elementwise_derivs``) and the tau jets of b_g and
 C_g (nested jvp: ``_affine_jets``), the gradient and Hessian in x are sums of
-small per-sample blocks (``_chain``): no (n x n) Hessian per sample, no batched
-small matrix products.  The other robots' positions at t_k = T s_k depend on T; their
+small per-sample blocks (``_chain``, one for every sample set: each (group, sample) pair
+is a row, and the shape block of the Hessian is one product over the rows): no (n x n)
+Hessian per sample.  The other robots' positions at t_k = T s_k depend on T; their
 second-order Taylor jet in T (exact value, first and second derivative at the current
 T) is formed at every evaluation from their coefficients, laid out once per solve
 (:func:`prepare_others`).  Checked against jax.hessian in tests/test_costs.py.
