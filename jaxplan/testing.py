@@ -106,7 +106,7 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     restv = jnp.broadcast_to(jnp.asarray(rest), (M,))
     pred = _predict(pos, vel, acc, goals, z, z, restv, prediction_weight)
     others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
-    orad = jnp.full((M, M), radius)
+    orad = jnp.full((M, M), radius, jnp.float64)  # strong: a weak leaf costs a conversion
     mask = ~jnp.eye(M, dtype=bool)
     idx = jnp.broadcast_to(jnp.arange(M), (M, M))
     if 0 < max_neighbors < M - 1:
