@@ -26,7 +26,8 @@ signed distance n . (p - c).
 
 The planner's NLP sees the world as "static rows" (:class:`StaticRows`): the obstacles
 followed by the finite workspace faces (:func:`static_rows`), each with the same
-signed-distance function (:func:`row_distance`), padded with masked rows to a fixed
+signed-distance function (:func:`signed_distance`; its derivatives
+in closed form: :func:`signed_distance_jet`), padded with masked rows to a fixed
 count so that a run with K obstacles compiles once.
 """
 
@@ -35,6 +36,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 SPHERE, BOX, CYLINDER, PLANE = 0, 1, 2, 3
@@ -183,8 +186,28 @@ def _safe_norm(x, xp, axis=-1):
 def _rounded(q, xp):
     """Signed distance from face distances q (..., m): |max(q, 0)| + min(max_i q_i, 0)."""
     out = _safe_norm(xp.maximum(q, 0.0), xp)
-    inside = xp.minimum(xp.max(q, axis=-1), 0.0)
+    inside = xp.minimum(_largest(q, xp), 0.0)
     return out + inside
+
+
+def _largest(q, xp):
+    """max(q, axis=-1), differentiated (in JAX) as the entry argmax picks (the first on
+    a tie).  JAX's own derivative of a max reduction divides by the count of entries
+    equal to the max, and a compiler that rounds the two computations of q differently
+    (XLA CPU at --xla_backend_optimization_level=0) finds none: 0 / 0, a NaN Hessian."""
+    return np.max(q, axis=-1) if xp is np else _max_last(q)
+
+
+@jax.custom_jvp
+def _max_last(q):
+    return jnp.max(q, axis=-1)
+
+
+@_max_last.defjvp
+def _max_last_jvp(primals, tangents):
+    (q,), (t,) = primals, tangents
+    i = jnp.argmax(q, axis=-1)[..., None]
+    return _max_last(q), jnp.take_along_axis(t, i, axis=-1)[..., 0]
 
 
 def signed_distance(kind, center, half, radius, p, xp=np):
@@ -205,6 +228,71 @@ def signed_distance(kind, center, half, radius, p, xp=np):
     pln = xp.sum(d * half, axis=-1)
     return xp.where(kind == SPHERE, sph, xp.where(kind == BOX, box,
                                                   xp.where(kind == CYLINDER, cyl, pln)))
+
+
+def _norm_jet(x, xp):
+    """sqrt(|x|^2 + e) - sqrt(e) of x (..., m) with its gradient (..., m) and Hessian
+    (..., m, m): x / s and (I - x x^T / s^2) / s, s = sqrt(|x|^2 + e)."""
+    s = xp.sqrt(xp.sum(x * x, axis=-1) + SQRT_EPS2)[..., None]
+    u = x / s
+    H = (xp.eye(x.shape[-1]) - u[..., :, None] * u[..., None, :]) / s[..., None]
+    return s[..., 0] - np.sqrt(SQRT_EPS2), u, H
+
+
+def _rounded_jet(q, xp):
+    """:func:`_rounded` of q (..., m) with its gradient and Hessian in q: outside, the
+    norm of max(q, 0) (its jet restricted to the positive entries); inside, the largest
+    entry (a one-hot gradient, no curvature)."""
+    pos = q > 0.0
+    v, u, H = _norm_jet(xp.where(pos, q, 0.0), xp)
+    H = xp.where(pos[..., :, None] & pos[..., None, :], H, 0.0)
+    top = _largest(q, xp)
+    hot = (np.arange(q.shape[-1]) == xp.argmax(q, axis=-1)[..., None]) & (top < 0.0)[..., None]
+    return v + xp.minimum(top, 0.0), u + hot, H
+
+
+def signed_distance_jet(kind, center, half, radius, p, xp=np):
+    """:func:`signed_distance` with its derivatives in p in closed form: (sd (..., R),
+    gradient (..., R, N), Hessian (..., R, N, N)) at points p (..., N).  Where the
+    distance is not twice differentiable (an edge of max(q, 0), a tie of the inside's
+    max, |d| = 0) it is the derivative of one side, as autodiff takes one; elsewhere it
+    equals autodiff of :func:`signed_distance` (tests/test_world.py).  What the NLP's
+    static rows need per sample (:func:`jaxplan.nlp.derivs`): every kind is formed and
+    the row's selected, ~10x cheaper than a Hessian by autodiff through the selection."""
+    N = p.shape[-1]
+    d = p[..., None, :] - center  # (..., R, N)
+    sv, sg, sH = _norm_jet(d, xp)
+    sv = sv - radius
+    sgn = xp.where(d < 0.0, -1.0, 1.0)
+    bv, bg, bH = _rounded_jet(xp.abs(d) - half, xp)
+    bg = bg * sgn
+    bH = bH * sgn[..., :, None] * sgn[..., None, :]
+    if N == 3:
+        rv, rg, rH = _norm_jet(d[..., :2], xp)  # the distance from the axis
+        q = xp.stack([rv - radius, xp.abs(d[..., 2]) - half[..., 2]], axis=-1)
+        cv, cq, cH = _rounded_jet(q, xp)
+        J = xp.concatenate([  # dq/dp (..., R, 2, 3)
+            xp.concatenate([rg, xp.zeros_like(rg[..., :1])], axis=-1)[..., None, :],
+            xp.concatenate([xp.zeros_like(rg), sgn[..., 2:]], axis=-1)[..., None, :]],
+            axis=-2)
+        cg = xp.sum(cq[..., :, None] * J, axis=-2)
+        cH = xp.sum(J[..., :, :, None, None] * cH[..., :, None, :, None]
+                    * J[..., None, None, :, :], axis=(-4, -2))
+        # the axis distance's own curvature, in the horizontal block
+        cH = cH + cq[..., 0, None, None] * xp.pad(
+            rH, [(0, 0)] * (rH.ndim - 2) + [(0, 1), (0, 1)])
+    else:
+        cv, cg, cH = sv, sg, sH
+    k = kind[..., :, None]
+    pg = xp.broadcast_to(half, d.shape)
+    pv = xp.sum(d * half, axis=-1)
+    val = xp.where(kind == SPHERE, sv, xp.where(kind == BOX, bv, xp.where(kind == CYLINDER,
+                                                                          cv, pv)))
+    grad = xp.where(k == SPHERE, sg, xp.where(k == BOX, bg, xp.where(k == CYLINDER, cg, pg)))
+    kk = k[..., None]
+    hess = xp.where(kk == SPHERE, sH, xp.where(kk == BOX, bH, xp.where(kk == CYLINDER, cH,
+                                                                       0.0)))
+    return val, grad, hess
 
 
 # ---------------------------------------------------------------------- NLP rows

@@ -28,12 +28,12 @@ from jaxplan.nlp.terms import (
     paper_collision,
     sexp,
     static_allowance,
-    static_gap,
     static_local,
     static_scale,
 )
 from jaxplan.nlp.types import DIST_EPS2, Multipliers
 from jaxplan.trajectory import Trajectory
+from jaxplan.world import signed_distance_jet
 
 _E_POW = np.array([0, 1, 2, 0, 1, 2])  # the power of h in each row of boundary_vector
 
@@ -421,46 +421,48 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     """(value, local terms, g_static) of the static rows' terms (barrier and AL terms,
     :func:`jaxplan.nlp.terms.static_local`) for :func:`merit_derivs`.  Each collision
     row's local term is F_k = T B_k(p) + A_k(p) (B the barrier without its T factor, A
-    the AL terms); their p derivatives come from autodiff per row (small: N variables):
-    :func:`_chain`'s local terms (G, Hgg, HgT, GT, HTT) at the collision rows' positions,
-    one group.  g_static (n_col, R): the constraints where ``with_g`` and the mode has
-    them, else ones."""
-    params_s = params
+    the AL terms), a sum over the static rows of a scalar function of the gap
+    sd(p) - r: its p derivatives from the signed distance's closed-form jet
+    (:func:`jaxplan.world.signed_distance_jet`) and the scalar's derivatives, as
+    :func:`_chain`'s local terms (G, Hgg, HgT, GT, HTT) at the collision rows'
+    positions, one group.  g_static (n_col, R): the constraints where ``with_g`` and the
+    mode has them, else ones."""
     _, _, w, on = collision_rows(params, structure)
     (bp, C), _, _ = jets
     p = (bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)).T  # (K, N)
     st = params.static
     wt = params.weights
-    scale = static_scale(params)
-    lam = mult.static if mult is not None else None
-    cons = structure.collision_constraints and lam is not None
-    allow = static_allowance(params)
-
-    def bar(pk, wk):
-        if not structure.static_barrier:
-            return jnp.zeros((), p.dtype)
-        return wt.q_obs * wk * jnp.sum(jnp.where(st.mask, jnp.exp(-wt.k_p * static_gap(
-            pk, params_s)), 0.0))
-
-    def alt(pk, lk, ok):
-        if not cons:
-            return jnp.zeros((), p.dtype)
-        g = scale * (static_gap(pk, params_s) - allow)
-        return jnp.sum(jnp.where(st.mask & ok, al_term(g, lk, mu), 0.0))
-
-    bv, bg, bH = jax.vmap(lambda pk, wk: _value_grad_hessian(bar, pk, wk))(p, w)
-    if cons:
-        av, ag, aH = jax.vmap(lambda pk, lk, ok: _value_grad_hessian(alt, pk, lk, ok))(p, lam, on)
+    sd, dg, dH = signed_distance_jet(st.kind, st.center, st.half, st.radius, p, xp=jnp)
+    gap = sd - params.radius  # (K, R), as static_gap
+    cons = (structure.collision_constraints and mult is not None
+            and mult.static is not None)
+    # F = sum_R f(gap): gradient f' grad sd, Hessian f'' grad sd grad sd^T + f' Hess sd
+    zero = jnp.zeros_like(gap)
+    if structure.static_barrier:
+        bf = lambda gg: jnp.where(st.mask, wt.q_obs * w[:, None] * jnp.exp(-wt.k_p * gg), 0.0)
+        bv, b1, b2 = _elementwise_derivs(bf, gap)
     else:
-        av, ag, aH = jnp.zeros_like(bv), jnp.zeros_like(bg), jnp.zeros_like(bH)
+        bv, b1, b2 = zero, zero, zero
+    if cons:
+        scale = static_scale(params)
+        allow = static_allowance(params)
+        af = lambda gg: jnp.where(st.mask & on[:, None],
+                                  al_term(scale * (gg - allow), mult.static, mu), 0.0)
+        av, a1, a2 = _elementwise_derivs(af, gap)
+    else:
+        av, a1, a2 = zero, zero, zero
+    c1, c2 = T * b1 + a1, T * b2 + a2
     v = jnp.sum(T * bv + av)
-    G = (T * bg + ag).T  # (N, K)
-    Hgg = jnp.transpose(T * bH + aH, (1, 2, 0))  # (N, N, K)
-    local = (G[None], Hgg[None], bg.T[None], bv, jnp.zeros_like(bv))
+    G = jnp.sum(c1[..., None] * dg, axis=1).T  # (N, K)
+    Hgg = jnp.sum(c2[..., None, None] * dg[..., :, None] * dg[..., None, :]
+                  + c1[..., None, None] * dH, axis=1)  # (K, N, N)
+    Hgg = jnp.transpose(Hgg, (1, 2, 0))  # (N, N, K)
+    HgT = jnp.sum(b1[..., None] * dg, axis=1).T
+    local = (G[None], Hgg[None], HgT[None], jnp.sum(bv, axis=1), jnp.zeros(p.shape[0], z.dtype))
     gs = jnp.ones((structure.n_col, structure.n_static), z.dtype)
     if with_g and structure.collision_constraints:
-        gap = jax.vmap(lambda pk: static_gap(pk, params))(p) - allow
-        gs = jnp.where(st.mask[None, :] & on[:, None], scale * gap, 1.0)
+        gs = jnp.where(st.mask[None, :] & on[:, None],
+                       static_scale(params) * (gap - static_allowance(params)), 1.0)
     return v, local, gs
 
 
