@@ -50,6 +50,7 @@ def test_structured_derivatives_match_autodiff(st, rest):
     vr, gr, Hr = jax.jit(lambda xx: (f(xx), jax.grad(f)(xx), jax.hessian(f)(xx)))(x)
     np.testing.assert_allclose(v, vr, rtol=1e-12)
     np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
+    assert np.all(np.isfinite(Hr)) and np.all(np.isfinite(H))  # NaN would match NaN
     np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
 
 
@@ -75,6 +76,7 @@ def test_limit_derivatives_match_autodiff_where_the_limits_bind(rest, q_lim):
     vr, gr, Hr = jax.jit(lambda xx: (f(xx), jax.grad(f)(xx), jax.hessian(f)(xx)))(x)
     np.testing.assert_allclose(v, vr, rtol=1e-12)
     np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
+    assert np.all(np.isfinite(Hr)) and np.all(np.isfinite(H))  # NaN would match NaN
     np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
 
 
