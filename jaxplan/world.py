@@ -246,8 +246,9 @@ def _rounded_jet(q, xp):
     pos = q > 0.0
     v, u, H = _norm_jet(xp.where(pos, q, 0.0), xp)
     H = xp.where(pos[..., :, None] & pos[..., None, :], H, 0.0)
-    top = _largest(q, xp)
-    hot = (np.arange(q.shape[-1]) == xp.argmax(q, axis=-1)[..., None]) & (top < 0.0)[..., None]
+    i = xp.argmax(q, axis=-1)[..., None]
+    top = xp.take_along_axis(q, i, axis=-1)[..., 0]  # the max, found once
+    hot = (np.arange(q.shape[-1]) == i) & (top < 0.0)[..., None]
     return v + xp.minimum(top, 0.0), u + hot, H
 
 
