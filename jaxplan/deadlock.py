@@ -216,8 +216,11 @@ def initial_state(p, goal=None) -> DeadlockState:
     p: (M, N) positions."""
     M = p.shape[0]
     g = jnp.full_like(p, jnp.nan) if goal is None else goal
-    return DeadlockState(g, jnp.full((M,), jnp.inf), jnp.zeros((M,)), jnp.zeros((M,)),
-                         jnp.asarray(p), jnp.zeros((M,), bool), jnp.asarray(p),
+    # dtype given: a weakly typed fill would differ from the step's output state, and the
+    # step program would compile twice (for the first state and for every later one)
+    inf = jnp.full((M,), jnp.inf, dtype=jnp.float64)
+    return DeadlockState(g, inf, jnp.zeros((M,)), jnp.zeros((M,)), jnp.asarray(p),
+                         jnp.zeros((M,), bool), jnp.asarray(p),
                          jnp.zeros_like(p), jnp.zeros((M,), bool), jnp.zeros((M,), bool),
                          jnp.zeros((M,), bool), jnp.zeros((M,)))
 

@@ -249,8 +249,11 @@ def initial_state(task: Task, structure: RolloutStructure) -> RolloutState:
     comm = initial_comm(task.start, task.waypoints[:, 0], gv, task.rest[:, 0],
                         structure.latency_periods if structure.faults else 0,
                         task.faults.seed)
-    return RolloutState(jnp.asarray(0.0), task.start, z, z, ps, jnp.asarray(0, jnp.int32),
-                        jnp.zeros((M, W), bool), jnp.full((M, W), jnp.inf), comm)
+    # dtypes given: a weakly typed leaf would differ from a step's output state, and a
+    # jitted step would compile twice (tests/test_planner.py checks the state's types)
+    f64 = jnp.float64
+    return RolloutState(jnp.asarray(0.0, f64), task.start, z, z, ps, jnp.asarray(0, jnp.int32),
+                        jnp.zeros((M, W), bool), jnp.full((M, W), jnp.inf, dtype=f64), comm)
 
 
 def rollout(fp: FleetParams, task: Task, structure: RolloutStructure):

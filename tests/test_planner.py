@@ -120,6 +120,29 @@ def test_exact_separation_not_above_dense_samples(tiny_run):
             assert a["min_dist"][i, j] <= dense + 1e-12
 
 
+def _avals(tree):
+    return [(jax.tree_util.keystr(k), x.shape, x.dtype, x.weak_type)
+            for k, x in jax.tree_util.tree_leaves_with_path(jax.eval_shape(lambda t: t, tree))]
+
+
+def test_a_step_returns_the_state_types_it_was_given(tiny_config):
+    """The state after a replan period has the initial state's shapes, dtypes and weak
+    types (ideal and mjx): a jitted step then compiles once, not once for the first state
+    and again for every later one (a weakly typed inf in the initial state did that)."""
+    from jaxplan.sim import closed_loop as cl
+    from jaxplan.sim import fleet as sf
+
+    sc, structure, fp, task = _setup(tiny_config)
+    st = initial_state(task, structure)
+    out, _ = jax.eval_shape(lambda f, t, s: ex.step(f, t, s, structure), fp, task, st)
+    assert _avals(out) == _avals(st)
+    sim, _ = sf.init_sim(list(sc.vehicles), sc.start, world=sc.world)
+    carry = cl.mjx_initial_state(task, structure, sim)
+    out, _ = jax.eval_shape(
+        lambda f, t, c: cl.mjx_step(f, t, *c, structure, sim, 0.125), fp, task, carry)
+    assert _avals(out) == _avals(carry)
+
+
 def test_rollout_is_deterministic(tiny_config):
     sc, structure, fp, task = _setup(tiny_config)
     f = ex.step_runner(structure)
