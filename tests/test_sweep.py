@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import os
 import signal
 import subprocess
 import tomllib
@@ -15,6 +16,7 @@ import pytest
 
 from jaxplan.config import parse_config
 from tests._proc import child_env, jaxplan_cmd, kill_when
+from tests.conftest import TINY_TOML
 
 # 2 x 2 weights x 2 seeds on three robots crossing a 2 m sphere (seeded perturbation)
 SWEEP_TOML = """
@@ -245,17 +247,27 @@ def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
 # ----------------------------------------------------------------------------- end to end
 
 
+# The tiny scenario (tests/conftest.py) over the same 2 x 2 weights, one seed (the tiny
+# fleet has no random part), one run per batch: the batch program is then
+# tests/test_tune.py's (a tune on a CPU runs batches of one), compiled once for both
+# through the session's compilation cache (both modules run in one worker:
+# conftest.SHARED_WORKER).
+E2E_TOML = TINY_TOML + SWEEP_TOML[SWEEP_TOML.index("[sweep]"):].replace("seeds = [0, 1]",
+                                                                       "seeds = [0]")
+
+
 @pytest.fixture(scope="module")
 def sweep_env(tmp_path_factory):
     d = tmp_path_factory.mktemp("sweep")
     cfg = d / "tiny_sweep.toml"
-    cfg.write_text(SWEEP_TOML)
-    # 8 runs in batches of 2 -> 4 batches, so a kill lands mid-sweep; the three
-    # processes share one persistent compilation cache (each still reports its one
-    # compilation of the batch program).  One CPU device: the program split over two
-    # compiles and runs about twice as long on 2 cores (the suite's budget); the split
-    # is checked against these rows by test_split_over_two_devices_gives_the_same_rows.
-    env = child_env(d / "jax_cache", JAXPLAN_SWEEP_BATCH="2", JAXPLAN_CPU_DEVICES="1")
+    cfg.write_text(E2E_TOML)
+    # 4 runs in batches of 1 -> 4 batches, so a kill lands mid-sweep; the processes share
+    # the session's persistent compilation cache (each still reports its one compilation
+    # of the batch program).  One CPU device: the program split over two compiles and
+    # runs about twice as long on 2 cores (the suite's budget); the split is checked by
+    # test_split_over_two_devices_runs_every_row_once (slow).
+    cache = os.environ.get("JAX_COMPILATION_CACHE_DIR") or d / "jax_cache"
+    env = child_env(cache, JAXPLAN_SWEEP_BATCH="1", JAXPLAN_CPU_DEVICES="1")
     return d, cfg, env
 
 
@@ -287,18 +299,18 @@ def test_sweep_writes_rows_figures_and_counts_one_compilation(uninterrupted):
     assert "compilations: 1" in r.stdout, r.stdout
     assert "best setting: q_obs =" in r.stdout
     rows = _rows(out / "sweep.csv")
-    assert len(rows) == 8
-    assert len({(x["q_obs"], x["q_lim"], x["scenario"], x["seed"]) for x in rows}) == 8
+    assert len(rows) == 4
+    assert len({(x["q_obs"], x["q_lim"], x["scenario"], x["seed"]) for x in rows}) == 4
     for x in rows:
         assert x["success"] in ("0", "1")
         assert float(x["min_separation_ratio"]) > 0
-        assert x["robots"] == "3" and x["replans"] == "24" and x["error"] == ""
-        # the world's columns (the default world: the ground, no obstacles); the planner
-        # does not keep to the ground here, so only their agreement is checked
+        assert x["robots"] == "3" and x["replans"] == "96" and x["error"] == ""
+        # the world's columns (the default world: the ground, no obstacles; the tiny
+        # fleet flies 1.5 m above it)
         assert x["obstacle_collisions"] == "0" and x["min_obstacle_clearance_m"] == ""
-        below = float(x["min_workspace_clearance_m"]) < 0
-        assert (int(x["workspace_violations"]) > 0) == below
-        assert not (below and x["success"] == "1")
+        assert x["workspace_violations"] == "0" and float(x["min_workspace_clearance_m"]) > 0
+    # the weights reach the runs: rows of different weights differ
+    assert len({(x["min_separation_ratio"], x["makespan_s"]) for x in rows}) > 1, rows
     for name in ("success_rate.png", "min_separation.png", "makespan.png"):
         assert (out / "figures" / name).stat().st_size > 0
     assert (out / "config.toml").exists()
@@ -311,7 +323,7 @@ def test_rerun_skips_finished_rows(sweep_env, uninterrupted):
     r = subprocess.run(jaxplan_cmd("sweep", cfg, out), env=env, cwd=d, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert "compilations: 0" in r.stdout and "8 skipped" in r.stdout
+    assert "compilations: 0" in r.stdout and "4 skipped" in r.stdout
     assert (out / "sweep.csv").read_bytes() == before
 
 
@@ -325,14 +337,14 @@ def test_sigkill_then_resume_gives_the_same_rows(sweep_env, uninterrupted):
                      timeout=600, poll=0.02, what="no batch finished in time")
     assert proc.returncode == -signal.SIGKILL
     n_killed = _data_lines(csv_path)
-    assert 1 <= n_killed < 8, n_killed  # killed mid-sweep: the batch in flight was lost
+    assert 1 <= n_killed < 4, n_killed  # killed mid-sweep: the batch in flight was lost
     r = subprocess.run(jaxplan_cmd("sweep", cfg, out), env=env, cwd=d, capture_output=True,
                        text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "compilations: 1" in r.stdout
     assert f"{n_killed} skipped" in r.stdout
     resumed = _rows(csv_path)
-    assert len(resumed) == 8
+    assert len(resumed) == 4
     assert resumed == _rows(whole / "sweep.csv")
 
 
@@ -348,11 +360,12 @@ def test_split_over_two_devices_runs_every_row_once(sweep_env, uninterrupted):
     whole, _ = uninterrupted
     out = d / "two_devices"
     r = subprocess.run(jaxplan_cmd("sweep", cfg, out), cwd=d, capture_output=True, text=True,
-                       env=dict(env, JAXPLAN_CPU_DEVICES="2"), timeout=900)
+                       env=dict(env, JAXPLAN_CPU_DEVICES="2", JAXPLAN_SWEEP_BATCH="2"),
+                       timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "compilations: 1" in r.stdout, r.stdout
     split, one = _rows(out / "sweep.csv"), _rows(whole / "sweep.csv")
-    assert len(split) == len(one) == 8
+    assert len(split) == len(one) == 4
     for a, b in zip(split, one, strict=True):
         for c in ("q_obs", "q_lim", "scenario", "seed", "robots", "replans", "error"):
             assert a[c] == b[c], c
