@@ -258,7 +258,8 @@ def test_mjx_closed_loop_matches_c_engine():
 def test_importing_the_fleet_sim_prints_no_warp_notes():
     """mujoco.mjx prints two "Failed to import warp" lines on import when the optional
     Warp backend is missing; jaxplan's import of it (jaxplan.sim.import_mjx) drops them
-    and keeps anything else."""
+    and keeps anything else (that those lines are what a plain import prints:
+    test_a_plain_mjx_import_prints_only_the_warp_notes, slow)."""
     import subprocess
     import sys
 
@@ -268,9 +269,18 @@ def test_importing_the_fleet_sim_prints_no_warp_notes():
                        timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "Failed to import" not in r.stdout + r.stderr
+
+
+@pytest.mark.slow  # a second child process (~4 s): `make test-slow`
+def test_a_plain_mjx_import_prints_only_the_warp_notes():
+    """Where mujoco itself prints warp notes, they are the lines jaxplan drops (else
+    test_importing_the_fleet_sim_prints_no_warp_notes is moot)."""
+    import subprocess
+    import sys
+
     plain = subprocess.run([sys.executable, "-c", "import mujoco.mjx"], capture_output=True,
                            text=True, timeout=300)
-    # where mujoco itself prints them, they are what is dropped (else the test is moot)
+    assert plain.returncode == 0, plain.stderr[-2000:]
     if "Failed to import" in plain.stdout:
         assert all(ln.startswith(("Failed to import warp:", "Failed to import mujoco_warp:"))
                    for ln in plain.stdout.splitlines())

@@ -210,10 +210,13 @@ print("ok")
 """
 
 
+@pytest.mark.slow  # a child process, ~11 s: `make test-slow`
 def test_two_threads_solving_at_once_do_not_deadlock(tmp_path):
     """Two Python threads each solve a batch of two-segment NLPs at the same time (in a
     child process, under a time limit): before solve.linalg.eigh_safe this hung at 0% CPU in 6
-    of 7 tries (the LAPACK batch split above).  Same results as one at a time."""
+    of 7 tries (the LAPACK batch split above).  Same results as one at a time.  The cause
+    is checked in the default suite without threads (test_cpu_eigh_calls_never_split_
+    their_batch, test_nested_vmaps_of_the_solver_never_split_a_lapack_batch)."""
     import subprocess
     import sys
 
