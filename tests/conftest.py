@@ -27,11 +27,15 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
 # XLA's CPU compiler at its lowest effort: the suite compiles a few hundred programs and
 # runs most of them for milliseconds, so compiling is most of its time.  These flags cut
 # the compile of the tiny scenario's rollout about 3x (~22 s -> ~7 s of CPU) at the same
-# run time; results differ from the default flags by round-off only.  Set
-# JAXPLAN_TEST_XLA_DEFAULT=1 to test with the flags a user's run gets.
+# run time; results differ from the default flags by round-off only.  One XLA thread per
+# process (as `jaxplan bench`'s one-core rows): two workers on two cores, running small
+# computations, gain nothing from thread pools of their own (the suite: 481 -> 443 s of
+# CPU, 2-core machine).  Set JAXPLAN_TEST_XLA_DEFAULT=1 to test with the flags a user's
+# run gets.
 FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0 "
                       "--xla_llvm_disable_expensive_passes=true "
-                      "--xla_cpu_use_fusion_emitters=false")
+                      "--xla_cpu_use_fusion_emitters=false "
+                      "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
 if os.environ.get("JAXPLAN_TEST_XLA_DEFAULT") != "1" and \
         "--xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + FAST_COMPILE_FLAGS).strip()
