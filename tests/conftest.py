@@ -70,7 +70,7 @@ SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
 # for the other at the end.  Only the order changes; a unit missing here runs after.
 LONGEST_FIRST = ("tiny", "tests/test_solver.py", "tests/test_costs.py", "tests/test_world.py",
                  "tests/test_guess.py", "tests/test_solver_devices.py",
-                 "tests/test_goal_occupied.py", "tests/test_fuzz.py", "tests/test_sim_model.py")
+                 "tests/test_fuzz.py", "tests/test_sim_model.py")
 
 
 def pytest_xdist_make_scheduler(config, log):

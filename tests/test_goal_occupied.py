@@ -1,4 +1,8 @@
-"""Goals another robot occupies (planner.free_goals and a run beside a frozen robot)."""
+"""Goals another robot occupies (planner.free_goals and a run beside a frozen robot).
+
+The runs beside a frozen robot compile a closed loop of their own (~21 s of the 2-core
+suite for the four): behind the slow marker, as the other closed loops with programs of
+their own (tests/test_deadlock.py, test_guide.py, test_neighbors.py)."""
 
 import tomllib
 
@@ -137,6 +141,8 @@ def beside_frozen():
     return go
 
 
+@pytest.mark.slow  # the closed loop beside a frozen robot, its own program (~21 s for the
+# four): `make test-slow`
 def test_goal_inside_the_inflation_of_a_silent_robot_is_reached(beside_frozen):
     # planning distance 0.73 m (two 0.315 m Fireflys + 0.05 m margins); a silent robot
     # is inflated by up to MAX_INFLATION: 0.95 m lies inside that, outside the radii
@@ -147,6 +153,7 @@ def test_goal_inside_the_inflation_of_a_silent_robot_is_reached(beside_frozen):
     assert m["faults"]["collisions_involving_responsive"] == 0
 
 
+@pytest.mark.slow
 def test_goal_inside_a_frozen_robot_waits_beside_it(beside_frozen):
     res = beside_frozen(0.5)  # inside the planning distance: unreachable, safely
     m = res.metrics
@@ -161,6 +168,7 @@ def test_goal_inside_a_frozen_robot_waits_beside_it(beside_frozen):
     assert np.linalg.norm(end - np.array([0.5, 0.0, 1.5])) < 0.3
 
 
+@pytest.mark.slow
 def test_free_end_stops_short_of_a_frozen_robot_beyond_its_goal(beside_frozen):
     # a free-end plan may arrive at speed; with robot 0 just beyond the goal the coast
     # constraints (planner.coast_samples, default 8) make it arrive slowly enough to
@@ -172,6 +180,7 @@ def test_free_end_stops_short_of_a_frozen_robot_beyond_its_goal(beside_frozen):
     assert m["per_robot"][1]["reached"], m["per_robot"][1]
 
 
+@pytest.mark.slow
 def test_free_end_robot_waits_still_beside_a_frozen_robot_on_its_goal(beside_frozen):
     # the goal moved out of the frozen robot: the robot plans a rest end there and
     # hovers, rather than flying through the moved goal and back at speed
