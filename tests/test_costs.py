@@ -40,7 +40,14 @@ def _problem_and_multipliers(rng, st, rest):
     return p, nlp.kind_constants(p.rest, st), mult
 
 
-@pytest.mark.parametrize("st,rest", CASES)
+# Every case compiles two programs (~4-7 s on 2 cores): `make test` checks three that
+# between them reach every term (hard limits and three segments, degree 7, coast
+# samples, rest and free ends); all six under `make test-slow`.
+SLOW_CASES = (0, 2, 5)
+
+
+@pytest.mark.parametrize("st,rest", [pytest.param(*c, marks=pytest.mark.slow) if i in SLOW_CASES
+                                     else c for i, c in enumerate(CASES)])
 def test_structured_derivatives_match_autodiff(st, rest):
     rng = np.random.default_rng(0)
     p, kc, mult = _problem_and_multipliers(rng, st, rest)
@@ -54,9 +61,10 @@ def test_structured_derivatives_match_autodiff(st, rest):
     np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
 
 
-@pytest.mark.parametrize("rest", [False, True])
-@pytest.mark.parametrize("q_lim", [0.5, 0.0])
-def test_limit_derivatives_match_autodiff_where_the_limits_bind(rest, q_lim):
+@pytest.mark.parametrize("q_lim,rest", [(0.5, True), (0.0, False),  # the others: test-slow
+                                         pytest.param(0.5, False, marks=pytest.mark.slow),
+                                         pytest.param(0.0, True, marks=pytest.mark.slow)])
+def test_limit_derivatives_match_autodiff_where_the_limits_bind(q_lim, rest):
     """A fast plan (T = 0.8 s for a few metres): the hard-limit AL terms are active on
     their quadratic branch and the soft limits far up their exponential, the branches
     the test above (slow plans) does not reach.  With q_lim = 0 the hard limits alone

@@ -42,7 +42,7 @@ def _across_np(p0, goal):
     return np.cross(u, up), up
 
 
-@pytest.mark.parametrize("segments", [1, 2])
+@pytest.mark.parametrize("segments", [pytest.param(1, marks=pytest.mark.slow), 2])
 def test_initial_guess_swerve_is_the_best_of_its_candidates(segments):
     """The swerve stage: the guess is the grid's x or x plus 1.5 rho_max along the
     smoothest shape mode to the right, left, up or down, whichever has the least merit

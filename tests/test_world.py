@@ -139,7 +139,8 @@ def _world_near(p, rng, rows=10):
 @pytest.mark.parametrize("st,rest", [
     (NLPStructure(collision="barrier+constraint", segments=2, n_coast_samples=6, n_static=10),
      False),
-    (NLPStructure(collision="paper", segments=2, n_static=10), True),
+    pytest.param(NLPStructure(collision="paper", segments=2, n_static=10), True,
+                 marks=pytest.mark.slow),  # the paper's term: `make test-slow`
 ])
 def test_static_rows_structured_derivatives_match_autodiff(st, rest):
     """Obstacles near the straight line, random multipliers: value, gradient, Hessian
