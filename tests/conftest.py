@@ -56,8 +56,8 @@ TINY_TOML = (Path(__file__).resolve().parents[1] / "examples" / "tiny.toml").rea
 # Test modules that share one pytest-xdist worker under `make test` (--dist loadfile):
 # the tiny scenario's users, so that its programs compile once (in-process, by the first
 # test that asks for `tiny_run`; the crash test's `jaxplan run` children then load them
-# from the session's compilation cache; test_sweep's `jaxplan sweep` children and
-# test_tune's in-process tune share one batch program the same way).  Every other module
+# from the session's compilation cache; test_sweep's in-process `jaxplan sweep` and
+# test_tune's in-process tune share one batch program in memory).  Every other module
 # is its own unit, as usual.
 SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
                  ("test_cli", "test_crash", "test_examples", "test_planner", "test_sweep",

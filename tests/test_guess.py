@@ -122,9 +122,10 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
     # every candidate of a robot in one call: (shape, T) pairs, the shapes outer
     objective = jax.jit(jax.vmap(nlp.objective, in_axes=(0, None, None)), static_argnums=2)
     boundary = jax.jit(jax.vmap(nlp.boundary_vector, in_axes=(None, 0)))
+    guesses = jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))  # one program
     for rest in (False, True):
         P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), goals, rest=rest)
-        x0 = np.asarray(jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))(P))
+        x0 = np.asarray(guesses(P))
         for i in range(3):
             p = index_params(P, i)
             pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)

@@ -184,7 +184,11 @@ def test_an_interrupted_study_loses_only_the_trials_in_flight(interrupted_and_re
     assert res.requeued == 3 and res.ran == 3 and res.trials == 6
     # weights are traced: the resumed study reuses the program compiled before the stop
     assert res.compilations == 0, lines
-    assert sum("compiling the planner" in x for x in lines) == 1, lines
+    # one program for both runs (and for test_sweep's end to end, where it ran before
+    # in this process: then the first run finds it compiled already too)
+    assert sum("compiling the planner" in x for x in lines) <= 1, lines
+    assert sum("compiling the planner" in x or "compiled already (in this process)" in x
+               for x in lines) == 2, lines
     study = optuna.load_study(study_name="jaxplan_tune", storage=f"sqlite:///{out}/study.db")
     trials = study.get_trials()
     done = [t for t in trials if t.state.name == "COMPLETE"]
