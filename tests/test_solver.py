@@ -202,14 +202,22 @@ def test_pool_size_does_not_change_results():
     conv = ref.status == solve.CONVERGED
     assert np.all(ref.evaluations[conv] >= ref.iterations[conv] + 1)
     assert np.sum(ref.evaluations) > np.sum(ref.iterations) + np.sum(conv)  # some trials
-    # a batch of <= LOCKSTEP_MAX lanes starts in lockstep, then hands its stragglers to
-    # the slots: the same lanes again
+
+
+@pytest.mark.slow  # a program of its own (~8 s on 2 cores): `make test-slow`; the planner's
+# fleets (the tiny scenario's 3 robots, pool 2) take this path in every closed-loop test
+def test_lockstep_then_slots_gives_the_plain_vmaps_lanes():
+    """A batch of <= LOCKSTEP_MAX lanes starts in lockstep, then hands its stragglers to
+    the slots (solve.pool._pooled): the lanes of the plain vmap (pool = B) again."""
+    ps, P = _s1_batch()
+    x0 = solve.initial_guess_batch(P, S1).at[5].set(jnp.nan)
     n = 20
     assert n <= solve.LOCKSTEP_MAX < B
     sub = lambda t: jax.tree.map(lambda a: a[:n], t)
+    ref = jax.device_get(solve.solve_batch(sub(P), x0[:n], S1, pool=n))
     sol = jax.device_get(solve.solve_batch(sub(P), x0[:n], S1, pool=3))
     assert max(sol.iterations) > 2 * np.median(sol.iterations)  # stragglers for the slots
-    _assert_same_lanes(sol, sub(ref))
+    _assert_same_lanes(sol, ref)
 
 
 @pytest.mark.parametrize("B, pool", [(10, 2), (10, 4), (20, 3), (7, 7), (40, 2), (40, 12),
