@@ -52,7 +52,8 @@ made them).
 Every study prints its table (markdown) and writes it to ``--out/<study>.md``, with
 ``--out/<study>.meta.json`` (the command, the machine, the date) and the cells'
 aggregates in ``--out/<study>.json``; then it rewrites ``--results`` (default
-docs/RESULTS.md) from every ``<study>.md`` under ``--out``.  ``results`` does only that
+docs/RESULTS.md) from every ``<study>.md`` under ``--out`` (not after a run
+with ``--only``, whose table holds only some cells).  ``results`` does only that
 last step.  In the page, a study whose table is not under ``--out`` keeps the table it
 had, and the hand-written notes between ``<!-- notes:STUDY -->`` and
 ``<!-- /notes:STUDY -->`` are kept as they are.
@@ -544,8 +545,12 @@ def main(argv=None) -> int:
                 "machine": machine(), "date": _today()}
         (a.out / f"{a.study}.meta.json").write_text(json.dumps(meta, indent=1) + "\n")
         print(f"table in {a.out / (a.study + '.md')}")
-    if a.study == "results" or not a.no_results:
+    if a.study == "results" or not (a.no_results or a.only):
         print(f"wrote {write_results(a.out, a.results)}")
+    elif a.only:  # a table of some cells only would replace the page's whole table
+        print(f"{a.results} left as it is (--only: a partial table); "
+              f"`python experiments/studies.py {a.study} --collect --out {a.out}` "
+              "tabulates every cell there and rewrites it")
     return 0
 
 
