@@ -158,20 +158,27 @@ def _slug(s: str) -> str:
 
 
 def machine() -> str:
-    """One line naming this machine: CPU count and model, OS, JAX's default backend."""
+    """One line naming this machine: CPU count, model and widest vector instructions
+    (XLA compiles for them: the closed loops' round-off, and so a chaotic run's outcome,
+    differs between an AVX-512 and an AVX2 machine of the same model name), OS, JAX's
+    default backend."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:
         cores = os.cpu_count() or 1
-    model = platform.processor() or ""
+    model, flags = platform.processor() or "", set()
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
-                if line.startswith("model name"):
+                if line.startswith("model name") and not flags:
                     model = line.split(":", 1)[1].strip()
+                elif line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
                     break
     except OSError:
         pass
+    isa = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else ""
+    model = ", ".join(x for x in (model, isa) if x)
     cpu = f"{cores}-core CPU" + (f" ({model})" if model else "")
     try:
         import jax
