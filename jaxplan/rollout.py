@@ -279,9 +279,10 @@ def rollout_batch(fp: FleetParams, task: Task, structure: RolloutStructure,
 
     The vmap of :func:`rollout`, written as a scan of the vmapped step over a state that
     is batched from the start: vmapping the scan itself makes JAX batch its body (the
-    whole step) again for every carry leaf the first pass found batched, which took
-    about half the batch program's tracing (the same operations; the records are
-    returned batch-major, as the vmap returns them)."""
+    whole step) in passes until it knows which carry leaves are batched (a leaf that
+    starts unbatched, such as the clock, and comes out batched costs a pass), about half
+    the batch program's tracing.  The same operations (a sweep's rows are bitwise those
+    of the vmap); the records are returned batch-major, as the vmap returns them."""
     st0 = jax.vmap(lambda t: initial_state(t, structure))(task)
     vstep = jax.vmap(lambda f, t, s: step(f, t, s, structure), in_axes=(fp_axis, 0, 0))
     final, records = jax.lax.scan(lambda st, _: vstep(fp, task, st), st0, None,
