@@ -635,15 +635,19 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
     fp = fleet_params(config, scenario)
     task = task_of(config, scenario)
     bar = None
-    if progress:
-        from jaxplan.progress import progress_bar
+    if progress:  # opened at the first replan, after the compile (its ETA is the run's)
+        import sys
 
-        bar = progress_bar(structure.steps, config.name, "replan", leave=False)
+        from jaxplan.progress import AfterFirstUpdate
+
+        print(f"{config.name}: compiling the planner ({scenario.start.shape[0]} robots, "
+              f"{structure.steps} replans, backend {config.sim.backend})", file=sys.stderr,
+              flush=True)
+        bar = AfterFirstUpdate(structure.steps, config.name, "replan", leave=False)
 
     def _prog(n):
         if bar is not None:
-            bar.n = n
-            bar.refresh()
+            bar.set(n)
 
     if config.sim.backend == "mjx":
         final, records, period, compile_s, run_s, solve_ms = simulate_mjx(

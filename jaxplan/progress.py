@@ -4,6 +4,8 @@ tqdm redraws its bar with carriage returns, which in a file (CI logs, ``nohup``,
 ``> run.log``) becomes one ever-growing line.  When stderr is not a terminal,
 :func:`progress_bar` returns :class:`LineProgress` instead: one line at most every
 ``LINE_INTERVAL_S`` seconds (and at the end) with the count, elapsed time and ETA.
+:class:`AfterFirstUpdate` opens either only when the work reports its first unit, so
+that a compile before it does not enter the rate and the ETA.
 """
 
 from __future__ import annotations
@@ -60,3 +62,38 @@ def progress_bar(total: int, desc: str, unit: str, initial: int = 0, leave: bool
         return tqdm(total=total, initial=initial, unit=unit, desc=desc, leave=leave,
                     dynamic_ncols=True, smoothing=0.0, file=stream)
     return LineProgress(total, desc, unit, initial, file=stream)
+
+
+class AfterFirstUpdate:
+    """A :func:`progress_bar` opened at the first update, not before: work that starts by
+    compiling (tens of seconds) counts only its own time in the rate and the ETA (a bar
+    opened before the compile put it in: `jaxplan run`'s first line said "1/320 replans,
+    38 s, ETA 12038 s").  The units of that first update, which held the compile, open
+    the bar as its initial count (outside its rate).  ``update(k)``, ``set(n)`` (the
+    count done so far), ``close()``; nothing is shown before the first update."""
+
+    def __init__(self, total: int, desc: str, unit: str, leave: bool = True, stream=None):
+        self._args = (total, desc, unit)
+        self._leave, self._stream = leave, stream
+        self.bar = None
+
+    def _open(self, initial: int) -> bool:
+        """Open the bar at ``initial`` if it is not open; whether it was."""
+        if self.bar is not None:
+            return True
+        self.bar = progress_bar(*self._args, initial=int(initial), leave=self._leave,
+                                stream=self._stream)
+        return False
+
+    def update(self, k: int = 1) -> None:
+        if self._open(k):
+            self.bar.update(k)
+
+    def set(self, n: int) -> None:
+        if self._open(n):
+            self.bar.n = int(n)
+            self.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()

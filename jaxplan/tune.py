@@ -592,10 +592,11 @@ def run_tune(config: Config, out_dir, *, trials: int | None = None, progress: bo
     say(f"tune {config.name}: {len(tune.weights)} weights ({', '.join(tune.weights)}), "
         f"{target} trials ({done} done) in batches of {tune.batch}, {per_trial} runs each "
         f"({len(labels)} scenario(s) x {len(tune.seeds)} seeds), sampler {tune.sampler}")
-    from jaxplan.progress import progress_bar
+    from jaxplan.progress import AfterFirstUpdate
 
     total = todo * per_trial + 2 * len(labels) * len(tune.holdout_seeds)
-    bar = (progress_bar(total, config.name, "run") if progress and total
+    # opened when the first batch is done, after the compile (its ETA counts runs only)
+    bar = (AfterFirstUpdate(total, config.name, "run") if progress and total
            else _NoBar())
     try:
         ran = _run_batches(config, study, runner, labels, target, out, bar, say) \

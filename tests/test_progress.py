@@ -46,3 +46,37 @@ def test_terminal_gets_tqdm():
     assert not isinstance(bar, LineProgress)
     assert bar.n == 2
     bar.close()
+
+
+def test_a_bar_opened_after_the_compile_leaves_it_out_of_the_eta(monkeypatch):
+    """AfterFirstUpdate (jaxplan run's and jaxplan tune's bar): nothing before the first
+    update; the units of that update (which held the compile) are the bar's initial
+    count, outside its rate, so the ETA is that of the work after it."""
+    import jaxplan.progress as pr
+
+    clock = [0.0]
+    monkeypatch.setattr(pr.time, "perf_counter", lambda: clock[0])
+    buf = io.StringIO()
+    bar = pr.AfterFirstUpdate(100, "demo", "replan", stream=buf)
+    clock[0] = 60.0  # a minute of compiling, then the first replan
+    bar.set(1)
+    assert buf.getvalue() == ""
+    clock[0] = 100.0  # 40 s for 10 more replans: 4 s each, 89 to go
+    bar.set(11)
+    bar.bar._interval = 0.0
+    bar.bar.refresh()
+    line = buf.getvalue().splitlines()[-1]
+    assert line == "demo: 11/100 replans, 40 s, ETA 356 s", line
+    bar.close()
+    # by whole batches (tune): the first batch opens the bar, the next ones count
+    buf = io.StringIO()
+    bar = pr.AfterFirstUpdate(12, "demo", "run", stream=buf)
+    clock[0] = 200.0
+    bar.update(3)
+    clock[0] = 230.0
+    bar.update(3)
+    bar.close()
+    assert buf.getvalue().splitlines()[-1] == "demo: 6/12 runs, 30 s, ETA 60 s"
+    quiet = pr.AfterFirstUpdate(5, "demo", "run", stream=io.StringIO())
+    quiet.close()  # never opened: nothing, no error
+    assert quiet.bar is None
