@@ -106,8 +106,10 @@ def _kill_at_first_entry(d: Path, cfg, env, out: Path) -> None:
     assert not {f"figures/{f}" for f in FIGURES} <= first, first
 
 
+@pytest.mark.slow  # a `jaxplan run` child (~16-20 s of the suite): make test-slow, as the
+# test below; `make test` keeps the atomic writes' own test (tests/test_results.py)
 def test_sigkill_at_the_first_write_leaves_whole_files(crash_env):
-    # the fast half of the test below (make test)
+    # the first half of the test below
     d, cfg, env = crash_env
     _kill_at_first_entry(d, cfg, env, d / "first")
 
