@@ -627,8 +627,9 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
 
     Args:
         config: a validated Config (jaxplan.config.load_config / parse_config).
-        progress: show progress over replans (a tqdm bar on a terminal, a line every
-            30 s otherwise: jaxplan.progress).
+        progress: say on stderr that the planner compiles, then show progress over
+            replans from the first one (a tqdm bar on a terminal, a line every 30 s
+            otherwise: jaxplan.progress).
     """
     scenario = build_scenario(config)
     structure = structures(config)
