@@ -65,16 +65,18 @@ def progress_bar(total: int, desc: str, unit: str, initial: int = 0, leave: bool
 
 
 class AfterFirstUpdate:
-    """A :func:`progress_bar` opened at the first update, not before: work that starts by
+    """A :func:`progress_bar` opened after the compile, not before: work that starts by
     compiling (tens of seconds) counts only its own time in the rate and the ETA (a bar
     opened before the compile put it in: `jaxplan run`'s first line said "1/320 replans,
-    38 s, ETA 12038 s").  The units of that first update, which held the compile, open
-    the bar as its initial count (outside its rate).  ``update(k)``, ``set(n)`` (the
-    count done so far), ``close()``; nothing is shown before the first update."""
+    38 s, ETA 12038 s").  ``start()`` opens it (at ``initial``, e.g. runs a resumed sweep
+    skips) where the caller knows the compile has ended; otherwise the first
+    ``update(k)`` / ``set(n)`` opens it, the units of that update (which held the
+    compile) as its initial count, outside its rate.  Nothing is shown before."""
 
-    def __init__(self, total: int, desc: str, unit: str, leave: bool = True, stream=None):
+    def __init__(self, total: int, desc: str, unit: str, initial: int = 0,
+                 leave: bool = True, stream=None):
         self._args = (total, desc, unit)
-        self._leave, self._stream = leave, stream
+        self._initial, self._leave, self._stream = int(initial), leave, stream
         self.bar = None
 
     def _open(self, initial: int) -> bool:
@@ -85,8 +87,11 @@ class AfterFirstUpdate:
                                 stream=self._stream)
         return False
 
+    def start(self) -> None:
+        self._open(self._initial)
+
     def update(self, k: int = 1) -> None:
-        if self._open(k):
+        if self._open(self._initial + k):
             self.bar.update(k)
 
     def set(self, n: int) -> None:
@@ -97,3 +102,19 @@ class AfterFirstUpdate:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+class NoProgress:
+    """AfterFirstUpdate's interface, showing nothing (progress off)."""
+
+    def start(self) -> None:
+        pass
+
+    def update(self, k: int = 1) -> None:
+        pass
+
+    def set(self, n: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

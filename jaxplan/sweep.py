@@ -86,6 +86,7 @@ import jax
 from jaxplan import env_positive_int
 from jaxplan.config import SWEEP_ENGINES, Config, ConfigError, config_to_toml, parse_config
 from jaxplan.fileio import append_lines, atomic_write_text, file_lock
+from jaxplan.progress import AfterFirstUpdate, NoProgress
 from jaxplan.sweep_batch import (
     BatchRunner,
     CompileCounter,
@@ -302,30 +303,6 @@ def _resume_csv(csv_path: Path, say) -> set:
 # ------------------------------------------------------------------------ the sweep
 
 
-class _Progress:
-    """The progress bar over runs, opened after the first compilation (so that its ETA
-    counts runs only); does nothing when disabled."""
-
-    def __init__(self, enabled: bool, total: int, name: str, initial: int):
-        self.enabled, self.total, self.name, self.initial = enabled, total, name, initial
-        self.bar = None
-
-    def start(self) -> None:
-        if self.enabled and self.bar is None:
-            from jaxplan.progress import progress_bar
-
-            self.bar = progress_bar(self.total, self.name, "run", initial=self.initial)
-
-    def update(self, n: int) -> None:
-        self.start()
-        if self.bar is not None:
-            self.bar.update(n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
 def _batches(todo: list[SweepPoint], grid: list[SweepPoint], built,
              batch: int) -> list[tuple[tuple, int]]:
     """The points to run cut into batches of at most ``batch``, each of one shape group
@@ -345,8 +322,8 @@ def _batches(todo: list[SweepPoint], grid: list[SweepPoint], built,
             for key, pts in groups.items() for i in range(0, len(pts), batch)]
 
 
-def _run_local(config: Config, batches, built, batch: int, write: _Writer, bar: _Progress,
-               say) -> Tally:
+def _run_local(config: Config, batches, built, batch: int, write: _Writer,
+               bar: AfterFirstUpdate, say) -> Tally:
     """The batches one after another in this process."""
     runner = BatchRunner(config, say)
     for points, m_pad in batches:
@@ -465,7 +442,9 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
         built = build_scenarios(config, grid)  # (scenario, seed) pairs: few, cheap
         batches = _batches(todo, grid, built, batch)
         write = _Writer(csv_path, done)
-        bar = _Progress(progress, len(points), config.name, skipped)
+        # opened after the first compilation (its ETA counts runs only)
+        bar = (AfterFirstUpdate(len(points), config.name, "run", initial=skipped)
+               if progress else NoProgress())
         try:
             if engine == "ray":
                 from jaxplan import sweep_ray

@@ -592,12 +592,12 @@ def run_tune(config: Config, out_dir, *, trials: int | None = None, progress: bo
     say(f"tune {config.name}: {len(tune.weights)} weights ({', '.join(tune.weights)}), "
         f"{target} trials ({done} done) in batches of {tune.batch}, {per_trial} runs each "
         f"({len(labels)} scenario(s) x {len(tune.seeds)} seeds), sampler {tune.sampler}")
-    from jaxplan.progress import AfterFirstUpdate
+    from jaxplan.progress import AfterFirstUpdate, NoProgress
 
     total = todo * per_trial + 2 * len(labels) * len(tune.holdout_seeds)
     # opened when the first batch is done, after the compile (its ETA counts runs only)
     bar = (AfterFirstUpdate(total, config.name, "run") if progress and total
-           else _NoBar())
+           else NoProgress())
     try:
         ran = _run_batches(config, study, runner, labels, target, out, bar, say) \
             if todo else 0
@@ -642,11 +642,3 @@ def _batch_size(batch_size: int | None) -> int:
     if int(batch_size) < 1:
         raise TuneError(f"batch size must be >= 1, got {batch_size}")
     return int(batch_size)
-
-
-class _NoBar:
-    def update(self, n: int) -> None:
-        pass
-
-    def close(self) -> None:
-        pass

@@ -80,3 +80,22 @@ def test_a_bar_opened_after_the_compile_leaves_it_out_of_the_eta(monkeypatch):
     quiet = pr.AfterFirstUpdate(5, "demo", "run", stream=io.StringIO())
     quiet.close()  # never opened: nothing, no error
     assert quiet.bar is None
+
+
+def test_a_bar_started_after_the_compile_counts_from_its_initial(monkeypatch):
+    """The sweep's use: start() right after the compile, at the runs a resumed sweep
+    skipped; every batch then counts in the rate."""
+    import jaxplan.progress as pr
+
+    clock = [0.0]
+    monkeypatch.setattr(pr.time, "perf_counter", lambda: clock[0])
+    buf = io.StringIO()
+    bar = pr.AfterFirstUpdate(10, "demo", "run", initial=4, stream=buf)
+    clock[0] = 50.0  # compiled
+    bar.start()
+    clock[0] = 60.0
+    bar.update(2)
+    bar.close()
+    assert buf.getvalue().splitlines()[-1] == "demo: 6/10 runs, 10 s, ETA 20 s"
+    off = pr.NoProgress()
+    off.start(), off.update(3), off.set(5), off.close()
