@@ -47,7 +47,16 @@ from jaxplan.planner import (
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
 from jaxplan.timing import timed
-from jaxplan.world import StaticRows, World, face_names, static_rows, world_arrays
+from jaxplan.world import (
+    ALL_KINDS,
+    PLANE,
+    StaticRows,
+    World,
+    face_names,
+    row_kinds,
+    static_rows,
+    world_arrays,
+)
 
 # lower bound on every plan's horizon: two replan periods, so that a plan ends after the
 # next replan.  A shorter one is flown to its end within the period: a ground robot 0.19 m
@@ -77,7 +86,8 @@ class RunResult:
 
 
 def structures(config: Config, *, only_needed: bool = True,
-               n_static: int | None = None) -> RolloutStructure:
+               n_static: int | None = None,
+               static_kinds: tuple[int, ...] | None = None) -> RolloutStructure:
     """Static structures of a config (shapes other than M, N, W).
 
     only_needed: leave out the coast constraints when no robot of the config's own
@@ -86,6 +96,10 @@ def structures(config: Config, *, only_needed: bool = True,
     passes False.  n_static: the world's static rows (obstacles and workspace faces);
     default: those of the config's own world (a sweep passes the most of its grid); each
     NLP holds ``max_static_rows`` of them (PlannerStructure.static_slots).
+    static_kinds: the kinds of static rows the NLP's derivatives form
+    (NLPStructure.static_kinds); default: the config's own world's, with PLANE (its
+    workspace faces and the padding rows); a sweep, whose grid may hold other worlds,
+    passes jaxplan.world.ALL_KINDS.
     """
     pc = config.planner
     sc = build_scenario(config)
@@ -100,6 +114,9 @@ def structures(config: Config, *, only_needed: bool = True,
         n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
         collision=pc.collision, n_collision_samples=_round_up_to_4(pc.n_samples),
         n_coast_samples=coast, n_static=planner.static_slots(R),
+        # the kinds matter only to static rows: without, the default (one program)
+        static_kinds=ALL_KINDS if planner.static_slots(R) == 0 else
+        world_kinds(sc.world) if static_kinds is None else tuple(static_kinds),
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults
@@ -107,6 +124,12 @@ def structures(config: Config, *, only_needed: bool = True,
                             steps=steps, faults=fc.enabled,
                             latency_periods=round(fc.latency_s * pc.replan_hz) if fc.enabled
                             else 0)
+
+
+def world_kinds(world: World) -> tuple[int, ...]:
+    """The kinds of static rows an NLP in ``world`` holds (NLPStructure.static_kinds):
+    its obstacles' and PLANE (its workspace faces, and the padding rows)."""
+    return row_kinds(np.append(static_rows(world).kind, PLANE))
 
 
 def _round_up_to_4(n: int) -> int:

@@ -54,7 +54,7 @@ from jaxplan.scenarios import Scenario
 from jaxplan.solve import shard_lanes
 from jaxplan.sweep_csv import SweepError, make_key
 from jaxplan.timing import timed
-from jaxplan.world import static_rows
+from jaxplan.world import ALL_KINDS, static_rows
 
 __all__ = [
     "BatchRunner",
@@ -264,9 +264,10 @@ def _prepare(config: Config, point: SweepPoint, scenario: Scenario, m_pad: int,
 
 def structure_for(config: Config, n_dim: int, n_static: int | None = None) -> RolloutStructure:
     """The config's static structure for fleets in n_dim dimensions in worlds of
-    ``n_static`` static rows (default: the config's own world's)."""
+    ``n_static`` static rows (default: the config's own world's), of every kind (the
+    grid may hold other worlds than the config's)."""
     # the grid may hold free-end scenarios
-    st = structures(config, only_needed=False, n_static=n_static)
+    st = structures(config, only_needed=False, n_static=n_static, static_kinds=ALL_KINDS)
     nlp = dataclasses.replace(st.planner.nlp, n_dim=n_dim)
     return dataclasses.replace(st, planner=dataclasses.replace(st.planner, nlp=nlp))
 

@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 SPHERE, BOX, CYLINDER, PLANE = 0, 1, 2, 3
+ALL_KINDS = (SPHERE, BOX, CYLINDER, PLANE)
 OBSTACLE_KINDS = ("sphere", "box", "cylinder")  # index = kind code
 SQRT_EPS2 = 1e-12  # m^2: the smoothing of the square roots (module doc)
 
@@ -252,50 +253,72 @@ def _rounded_jet(q, xp):
     return v + xp.minimum(top, 0.0), u + hot, H
 
 
-def signed_distance_jet(kind, center, half, radius, p, xp=np):
+def row_kinds(kind) -> tuple[int, ...]:
+    """The kinds of static rows ``kind`` holds (padding included), sorted: what
+    :func:`signed_distance_jet` must form for them (``kinds``)."""
+    return tuple(sorted({int(k) for k in np.asarray(kind).reshape(-1)}))
+
+
+def signed_distance_jet(kind, center, half, radius, p, xp=np, kinds=ALL_KINDS):
     """:func:`signed_distance` with its derivatives in p in closed form: (sd (..., R),
     gradient (..., R, N), Hessian (..., R, N, N)) at points p (..., N).  Where the
     distance is not twice differentiable (an edge of max(q, 0), a tie of the inside's
     max, d_i = 0) it is the derivative of one side (autodiff may take the other, or 0 for
     |d_i| at 0); elsewhere it equals autodiff of :func:`signed_distance`
     (tests/test_world.py).  What the NLP's static rows need per sample
-    (:func:`jaxplan.nlp.derivs`): every kind is formed and the row's selected; a 10-lane
-    evaluation of the product NLP (one static row) is ~70 us (~11%) cheaper than with a
-    Hessian by autodiff through the selection (docs/SOLVER.md, Derivatives)."""
+    (:func:`jaxplan.nlp.derivs`): the kinds in ``kinds`` (static: the NLP's
+    ``NLPStructure.static_kinds``) are formed and each row's selected; a row of
+    another kind gets NaN (never a wrong distance).  A 10-lane evaluation of the product
+    NLP (one static row) is ~70 us (~11%) cheaper than with a Hessian by autodiff through
+    the selection, and a warm 10-robot replan ~18% faster with only the ground's kind
+    (PLANE) formed than with all four (docs/SOLVER.md, Derivatives)."""
+    kinds = tuple(sorted(set(kinds)))
+    if not kinds or not set(kinds) <= set(ALL_KINDS):
+        raise ValueError(f"kinds must be a non-empty subset of {ALL_KINDS}, got {kinds}")
     N = p.shape[-1]
     d = p[..., None, :] - center  # (..., R, N)
-    sv, sg, sH = _norm_jet(d, xp)
-    sv = sv - radius
-    sgn = xp.where(d < 0.0, -1.0, 1.0)
-    bv, bg, bH = _rounded_jet(xp.abs(d) - half, xp)
-    bg = bg * sgn
-    bH = bH * sgn[..., :, None] * sgn[..., None, :]
-    if N == 3:
-        rv, rg, rH = _norm_jet(d[..., :2], xp)  # the distance from the axis
-        q = xp.stack([rv - radius, xp.abs(d[..., 2]) - half[..., 2]], axis=-1)
-        cv, cq, cH = _rounded_jet(q, xp)
-        J = xp.concatenate([  # dq/dp (..., R, 2, 3)
-            xp.concatenate([rg, xp.zeros_like(rg[..., :1])], axis=-1)[..., None, :],
-            xp.concatenate([xp.zeros_like(rg), sgn[..., 2:]], axis=-1)[..., None, :]],
-            axis=-2)
-        cg = xp.sum(cq[..., :, None] * J, axis=-2)
-        cH = xp.sum(J[..., :, :, None, None] * cH[..., :, None, :, None]
-                    * J[..., None, None, :, :], axis=(-4, -2))
-        # the axis distance's own curvature, in the horizontal block
-        cH = cH + cq[..., 0, None, None] * xp.pad(
-            rH, [(0, 0)] * (rH.ndim - 2) + [(0, 1), (0, 1)])
-    else:
-        cv, cg, cH = sv, sg, sH
-    k = kind[..., :, None]
-    pg = xp.broadcast_to(half, d.shape)
-    pv = xp.sum(d * half, axis=-1)
-    val = xp.where(kind == SPHERE, sv, xp.where(kind == BOX, bv, xp.where(kind == CYLINDER,
-                                                                          cv, pv)))
-    grad = xp.where(k == SPHERE, sg, xp.where(k == BOX, bg, xp.where(k == CYLINDER, cg, pg)))
-    kk = k[..., None]
-    hess = xp.where(kk == SPHERE, sH, xp.where(kk == BOX, bH, xp.where(kk == CYLINDER, cH,
-                                                                       0.0)))
+    jets = {}
+    if SPHERE in kinds or (CYLINDER in kinds and N != 3):
+        sv, sg, sH = _norm_jet(d, xp)
+        jets[SPHERE] = (sv - radius, sg, sH)
+    if BOX in kinds:
+        sgn = xp.where(d < 0.0, -1.0, 1.0)
+        bv, bg, bH = _rounded_jet(xp.abs(d) - half, xp)
+        jets[BOX] = (bv, bg * sgn, bH * sgn[..., :, None] * sgn[..., None, :])
+    if CYLINDER in kinds:
+        jets[CYLINDER] = _cylinder_jet(d, half, radius, xp) if N == 3 else jets[SPHERE]
+    if PLANE in kinds:
+        jets[PLANE] = (xp.sum(d * half, axis=-1), xp.broadcast_to(half, d.shape),
+                       xp.zeros(d.shape + (N,)))
+    nan = np.nan
+    val, grad, hess = nan, nan, nan
+    for k in reversed(kinds):  # each row's kind selected; a kind not formed: NaN
+        kv, kg, kH = jets[k]
+        on = kind == k
+        val = xp.where(on, kv, val)
+        grad = xp.where(on[..., None], kg, grad)
+        hess = xp.where(on[..., None, None], kH, hess)
     return val, grad, hess
+
+
+def _cylinder_jet(d, half, radius, xp):
+    """The signed distance's jet (value, gradient, Hessian) to vertical cylinders from
+    offsets d (..., R, 3) to their centres (:func:`signed_distance_jet`)."""
+    sgn = xp.where(d < 0.0, -1.0, 1.0)
+    rv, rg, rH = _norm_jet(d[..., :2], xp)  # the distance from the axis
+    q = xp.stack([rv - radius, xp.abs(d[..., 2]) - half[..., 2]], axis=-1)
+    cv, cq, cH = _rounded_jet(q, xp)
+    J = xp.concatenate([  # dq/dp (..., R, 2, 3)
+        xp.concatenate([rg, xp.zeros_like(rg[..., :1])], axis=-1)[..., None, :],
+        xp.concatenate([xp.zeros_like(rg), sgn[..., 2:]], axis=-1)[..., None, :]],
+        axis=-2)
+    cg = xp.sum(cq[..., :, None] * J, axis=-2)
+    cH = xp.sum(J[..., :, :, None, None] * cH[..., :, None, :, None]
+                * J[..., None, None, :, :], axis=(-4, -2))
+    # the axis distance's own curvature, in the horizontal block
+    cH = cH + cq[..., 0, None, None] * xp.pad(
+        rH, [(0, 0)] * (rH.ndim - 2) + [(0, 1), (0, 1)])
+    return cv, cg, cH
 
 
 # ---------------------------------------------------------------------- NLP rows

@@ -17,8 +17,10 @@ from jaxplan.nlp.terms import STATIC_PRIORITY
 from jaxplan.testing import limits, random_obstacles, random_problem, weights
 from jaxplan.trajectory import Trajectory
 from jaxplan.world import (
+    ALL_KINDS,
     BOX,
     CYLINDER,
+    PLANE,
     SPHERE,
     StaticRows,
     World,
@@ -105,6 +107,81 @@ def test_signed_distance_jet_matches_autodiff(N):
     for a, b in zip((sd, g, H), ref, strict=True):
         assert np.all(np.isfinite(b))
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("kinds", [(PLANE,), (BOX, PLANE), (SPHERE, CYLINDER), ALL_KINDS])
+def test_signed_distance_jet_forms_only_the_given_kinds(kinds):
+    """signed_distance_jet(kinds=...) gives the full jet's values at the rows of those
+    kinds and NaN at a row of another (never a wrong distance); NumPy exactly, jitted to
+    rounding.  Bad ``kinds`` are refused."""
+    rng = np.random.default_rng(11)
+    kind = np.array([SPHERE, BOX, CYLINDER, PLANE, BOX, PLANE])
+    center = rng.normal(size=(6, 3))
+    half = rng.uniform(0.3, 1.0, (6, 3))
+    half[[3, 5]] = np.eye(3)[[2, 0]]
+    radius = rng.uniform(0.3, 1.0, 6)
+    p = rng.normal(size=(40, 3)) * 1.5
+    full = signed_distance_jet(kind, center, half, radius, p)
+    some = signed_distance_jet(kind, center, half, radius, p, kinds=kinds)
+    on = np.isin(kind, kinds)
+    jit = jax.jit(lambda q, ks: signed_distance_jet(kind, center, half, radius, q, xp=jnp,
+                                                    kinds=ks), static_argnums=1)
+    for a, b, c in zip(full, some, jit(p, kinds), strict=True):
+        np.testing.assert_array_equal(b[:, on], a[:, on])
+        np.testing.assert_allclose(np.asarray(c)[:, on], a[:, on], rtol=1e-14, atol=1e-14)
+        assert np.all(np.isnan(b[:, ~on])) and np.all(np.isnan(np.asarray(c)[:, ~on]))
+    for bad in ((), (PLANE, 7)):
+        with pytest.raises(ValueError, match="kinds"):
+            signed_distance_jet(kind, center, half, radius, p, kinds=bad)
+
+
+def test_static_kinds_of_structures():
+    """A run's NLP forms its world's kinds of static rows (PLANE: the faces and padding);
+    the default 3-D world (the ground) PLANE alone; a world without static rows and a
+    sweep's grid every kind; NLPStructure refuses kinds it does not know."""
+    from jaxplan.sweep_batch import structure_for
+
+    kinds = lambda text: ex.structures(_cfg(text)).planner.nlp.static_kinds
+    assert kinds(SELECT.format(K=0)) == ALL_KINDS  # all three obstacle kinds and faces
+    assert kinds(BASE) == (CYLINDER, PLANE)
+    assert kinds(BASE.split("[[obstacles]]")[0]) == (PLANE,)
+    ground = ex.structures(_cfg(BASE.split("[workspace]")[0])).planner.nlp
+    assert ground.n_static == 1 and ground.static_kinds == (PLANE,)
+    assert structure_for(_cfg(BASE), 3).planner.nlp.static_kinds == ALL_KINDS
+    for bad in ((), (PLANE, BOX), (0, 9)):
+        with pytest.raises(ValueError, match="static_kinds"):
+            NLPStructure(n_static=2, static_kinds=bad)
+
+
+def test_merit_derivs_with_the_worlds_kinds_equal_every_kinds():
+    """The NLP's derivatives with NLPStructure.static_kinds = the world's kinds equal
+    those that form every kind (to rounding), and a structure that lacks a row's kind
+    gives a NaN value (the solver's NON_FINITE), not a wrong one."""
+    rng = np.random.default_rng(4)
+    p = random_problem(rng, n_others=3)
+    p0, pf = np.asarray(p.p0), np.asarray(p.goal_p)
+    mid = (p0 + pf) / 2
+    w = World(np.array([-np.inf, -np.inf, min(p0[2], pf[2]) - 0.5]), np.full(3, np.inf),
+              *obstacle_arrays([dict(kind="box", center=mid, half_extents=[0.3, 0.3, 0.4])], 3))
+    rows = StaticRows(*(jnp.asarray(a) for a in static_rows(w, 3)))  # box, ground, padding
+    p = p._replace(static=rows)
+    st = NLPStructure(segments=2, n_coast_samples=4, n_static=3)
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 5, (st.n_col, p.other_mask.shape[-1]))),
+                       jnp.asarray(rng.uniform(0, 5, (len(nlp.basis(st).lim_s), 3))),
+                       jnp.asarray(rng.uniform(0, 5, (st.n_col, 3))))
+    kc = nlp.kind_constants(p.rest, st)
+    x = jnp.asarray(np.append(rng.normal(size=st.n_x - 1) * 0.05, np.log(4.0)))
+    derivs = jax.jit(lambda s: nlp.merit_derivs(x, p, s, kc, mult, 30.0, with_g=True),
+                     static_argnums=0)
+    ref = derivs(st)
+    got = derivs(NLPStructure(segments=2, n_coast_samples=4, n_static=3,
+                              static_kinds=(BOX, PLANE)))
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(ref), strict=True):
+        assert np.all(np.isfinite(a))
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(b))))
+    lacking = derivs(NLPStructure(segments=2, n_coast_samples=4, n_static=3,
+                                  static_kinds=(PLANE,)))
+    assert np.isnan(float(lacking[0]))
 
 
 def test_workspace_faces_are_half_spaces():

@@ -153,7 +153,8 @@ def _planner_setup(config, scenario=None):
 
     sc = scenario if scenario is not None else build_scenario(config)
     n_static = static_rows(sc.world).mask.shape[0]
-    st = experiment.structures(config, n_static=n_static).planner.nlp
+    st = experiment.structures(config, n_static=n_static,
+                               static_kinds=experiment.world_kinds(sc.world)).planner.nlp
     fp = experiment.fleet_params(config, sc, n_static=n_static)
     first = lambda a: float(np.asarray(a).reshape(-1)[0])
     kw = dict(w=fp.weights, lim=Limits(*(first(a) for a in fp.limits)),
@@ -545,7 +546,8 @@ def obstacles_row(reps: int = 5, steps: int = WARM_STEPS, obstacles: int = OBSTA
     out = {}
     for name, scen in (("with", sc), ("none", sc.with_world(sc.world.with_obstacles([])))):
         R = static_rows(scen.world).mask.shape[0]
-        planner = experiment.structures(cfg, n_static=R).planner
+        planner = experiment.structures(cfg, n_static=R,
+                                        static_kinds=experiment.world_kinds(scen.world)).planner
         fp = experiment.fleet_params(cfg, scen, n_static=R)
         goals = np.asarray(scen.waypoints[:, -1])
         structure, cases, comp, _ = _fleet_cases(

@@ -432,7 +432,8 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     p = (bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)).T  # (K, N)
     st = params.static
     wt = params.weights
-    sd, dg, dH = signed_distance_jet(st.kind, st.center, st.half, st.radius, p, xp=jnp)
+    sd, dg, dH = signed_distance_jet(st.kind, st.center, st.half, st.radius, p, xp=jnp,
+                                     kinds=structure.static_kinds)
     gap = sd - params.radius  # (K, R), as static_gap
     cons = (structure.collision_constraints and mult is not None
             and mult.static is not None)
