@@ -87,16 +87,20 @@ def _set_cpu_devices() -> None:
 # can lag that much, and a sweep of hours died with "Termination timeout for `all
 # gather ...` of 40 seconds exceeded".  The devices of a jaxplan program only ever wait
 # for each other's work, so jaxplan lets them wait up to an hour (and warns after 5 min);
-# a value the user put in XLA_FLAGS is kept.
+# a value the user put in XLA_FLAGS is kept.  They go first: XLA reads XLA_FLAGS only up
+# to the first word that is not a --flag and silently drops the rest (a value that is
+# not a --flag at all names a file of flags, and is left alone).
 COLLECTIVE_FLAGS = {"xla_cpu_collective_call_terminate_timeout_seconds": 3600,
                     "xla_cpu_collective_call_warn_stuck_timeout_seconds": 300}
 
 
 def _set_collective_timeouts() -> None:
-    flags = os.environ.get("XLA_FLAGS", "")
+    flags = os.environ.get("XLA_FLAGS", "").strip()
+    if flags and not flags.startswith("--"):
+        return
     extra = [f"--{k}={v}" for k, v in COLLECTIVE_FLAGS.items() if k not in flags]
     if extra:
-        os.environ["XLA_FLAGS"] = " ".join([flags, *extra]).strip()
+        os.environ["XLA_FLAGS"] = " ".join([*extra, flags]).strip()
 
 
 _set_collective_timeouts()

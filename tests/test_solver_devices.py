@@ -242,6 +242,40 @@ def test_collective_timeouts_are_set_and_a_users_value_is_kept(monkeypatch):
     assert "--xla_cpu_collective_call_warn_stuck_timeout_seconds=300" in flags
 
 
+def test_collective_timeouts_go_before_a_word_xla_would_stop_at(monkeypatch, tmp_path):
+    """XLA parses XLA_FLAGS up to the first word that is not a --flag and drops the rest
+    without a word: jaxplan's flags go first, so that they still reach XLA (a child
+    process dumps its HLO only if a flag placed as jaxplan places its own is read); a
+    value that names a file of flags is left alone."""
+    import os
+    import subprocess
+    import sys
+
+    from tests._proc import ROOT, child_env
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false stray_word=1")
+    jaxplan._set_collective_timeouts()
+    flags = os.environ["XLA_FLAGS"].split()
+    assert flags.index("stray_word=1") > max(
+        i for i, f in enumerate(flags) if "collective_call" in f)
+    monkeypatch.setenv("XLA_FLAGS", "flags.txt")
+    jaxplan._set_collective_timeouts()
+    assert os.environ["XLA_FLAGS"] == "flags.txt"
+    # the parsing itself: a flag after the stray word is lost, one before it is read
+    code = "import jax, jax.numpy as jnp; jax.jit(lambda a: a + 1)(jnp.ones(2)).block_until_ready()"
+    for where, dumped in (("before", True), ("after", False)):
+        dump = tmp_path / where
+        f = f"--xla_dump_to={dump}"
+        # (a value that starts with a non-flag word would be read as a file name)
+        env = child_env(tmp_path / f"cache_{where}") | {  # no program from a cache
+            "XLA_FLAGS": f"{f} stray_word=1" if where == "before"
+            else f"--xla_cpu_multi_thread_eigen=false stray_word=1 {f}"}
+        r = subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT,
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert dump.exists() == dumped, where
+
+
 _LAG = """
 import time
 import jaxplan

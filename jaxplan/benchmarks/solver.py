@@ -133,11 +133,11 @@ def _slsqp_serial(case, structure):
 
 
 # ---------------------------------------------------------------------- product vs paper
-# one core: one CPU (the child pins itself), one JAX CPU device, one XLA thread, one
-# OpenMP / BLAS thread for the references
+# one core: one CPU (the child pins itself), one JAX CPU device, Eigen's single-threaded
+# kernels, one OpenMP / BLAS thread for the references (every entry a --flag: XLA reads
+# XLA_FLAGS only up to the first word that is not one and silently drops the rest)
 ONE_CORE_ENV = {"JAXPLAN_CPU_DEVICES": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-                "XLA_FLAGS_EXTRA": "--xla_cpu_multi_thread_eigen=false "
-                                   "intra_op_parallelism_threads=1"}
+                "XLA_FLAGS_EXTRA": "--xla_cpu_multi_thread_eigen=false"}
 WARM_STEPS = 4  # warm replans compared per fleet
 PAPER_MAX_ITERS = 60
 
