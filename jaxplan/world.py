@@ -270,7 +270,7 @@ def signed_distance_jet(kind, center, half, radius, p, xp=np, kinds=ALL_KINDS):
     ``NLPStructure.static_kinds``) are formed and each row's selected; a row of
     another kind gets NaN (never a wrong distance).  A 10-lane evaluation of the product
     NLP (one static row) is ~70 us (~11%) cheaper than with a Hessian by autodiff through
-    the selection, and a warm 10-robot replan ~18% faster with only the ground's kind
+    the selection, and a warm 10-robot replan ~16-18% faster with only the ground's kind
     (PLANE) formed than with all four (docs/SOLVER.md, Derivatives)."""
     kinds = tuple(sorted(set(kinds)))
     if not kinds or not set(kinds) <= set(ALL_KINDS):

@@ -73,7 +73,7 @@ class NLPStructure:
             another kind has a NaN distance (its lane ends NON_FINITE, never with a wrong
             one).  Default every kind; :func:`jaxplan.experiment.structures` gives a run
             its world's kinds (:func:`jaxplan.world.row_kinds`; the 3-D default world, the
-            ground alone: PLANE), which makes a warm 10-robot replan ~18% faster.
+            ground alone: PLANE), which makes a warm 10-robot replan ~16-18% faster.
     """
 
     n_dim: int = 3
