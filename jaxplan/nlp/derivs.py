@@ -32,6 +32,7 @@ from jaxplan.nlp.terms import (
     static_scale,
 )
 from jaxplan.nlp.types import DIST_EPS2, Multipliers
+from jaxplan.pytree import sum_all
 from jaxplan.trajectory import Trajectory
 from jaxplan.world import signed_distance_jet
 
@@ -196,15 +197,15 @@ def _chain(z, T, parts):
     pt = b1 + jnp.matmul(z, C1.T, precision=hi)  # (N, R)
     ptt = b2 + jnp.matmul(z, C2.T, precision=hi)
     gz = jnp.matmul(G, C, precision=hi)  # (N, nz)
-    gt = jnp.sum(GT) * T + jnp.sum(G * pt)
+    gt = sum_all(GT) * T + sum_all(G * pt)
     CC = (C[:, :, None] * C[:, None, :]).reshape(C.shape[0], nz * nz)  # (R, nz nz)
     hzz = jnp.matmul(Hgg.reshape(N * N, -1), CC, precision=hi)  # (N N, nz nz)
     hzz = jnp.transpose(hzz.reshape(N, N, nz, nz), (0, 2, 1, 3)).reshape(N * nz, N * nz)
     Hpt = jnp.sum(Hgg * pt[None, :, :], axis=1)  # (N, R)
     hzt = (jnp.matmul(Hpt + HgT * T, C, precision=hi) + jnp.matmul(G, C1, precision=hi)
            ).reshape(-1)
-    htt = (jnp.sum(T * T * HTT + T * GT) + jnp.sum(pt * Hpt) + 2.0 * T * jnp.sum(HgT * pt)
-           + jnp.sum(G * ptt))
+    htt = (sum_all(T * T * HTT + T * GT) + sum_all(pt * Hpt) + 2.0 * T * sum_all(HgT * pt)
+           + sum_all(G * ptt))
     H = jnp.concatenate([jnp.concatenate([hzz, hzt[:, None]], axis=1),
                          jnp.concatenate([hzt, htt[None]])[None]], axis=0)
     return jnp.concatenate([gz.reshape(-1), gt[None]]), H
@@ -263,12 +264,12 @@ def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
     if soft:
         av, a1, a2 = _elementwise_derivs(lambda rr: params.weights.q_lim * w * sexp(rr - tm2), rho)
         cd, cdd = T * a1, T * a2
-        val = T * jnp.sum(av)
+        val = T * sum_all(av)
         GT = jnp.sum(av, axis=0)
         HgT = 2.0 * a1[:, None] * Y
     else:
         bv, cd, cdd = _elementwise_derivs(lambda rr: al_term(1.0 - rr / tm2, lam.T, mu), rho)
-        val = jnp.sum(bv)
+        val = sum_all(bv)
         GT = jnp.zeros(K, z.dtype)
         HgT = jnp.zeros_like(Y)
     N = z.shape[0]
@@ -405,7 +406,7 @@ def _collision_derivs(x, z, T, tau, params, structure, kind, mult: Multipliers, 
     cd = T * a1 + b1
     cdd = T * a2 + b2
     Xu = jnp.sum(X * u, axis=0)
-    v = jnp.sum(T * av + bv)
+    v = sum_all(T * av + bv)
     Gp = 2.0 * jnp.sum(cd * X, axis=1)
     GT = jnp.sum(2.0 * cd * Xu + av, axis=0)
     eye = jnp.eye(N, dtype=x.dtype)[:, :, None]
@@ -453,7 +454,7 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     else:
         av, a1, a2 = zero, zero, zero
     c1, c2 = T * b1 + a1, T * b2 + a2
-    v = jnp.sum(T * bv + av)
+    v = sum_all(T * bv + av)
     G = jnp.sum(c1[..., None] * dg, axis=1).T  # (N, K)
     Hgg = jnp.sum(c2[..., None, None] * dg[..., :, None] * dg[..., None, :]
                   + c1[..., None, None] * dH, axis=1)  # (K, N, N)

@@ -68,7 +68,7 @@ import jax.numpy as jnp
 
 from jaxplan import nlp
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
-from jaxplan.pytree import tree_where
+from jaxplan.pytree import any_all, max_all, min_all, sum_all, tree_where
 from jaxplan.solve.guess import initial_guess
 from jaxplan.solve.linalg import directions
 from jaxplan.solve.types import (
@@ -133,7 +133,7 @@ def next_trial(a, g_x: Multipliers, g_a: Multipliers, thr: Multipliers, overshoo
     frac = jax.tree.map(
         lambda gx, ga, t: jnp.where((gx >= t) & (ga < t), (gx - t) / jnp.maximum(gx - ga, 1e-300),
                                     1.0), g_x, g_a, thr)
-    r = functools.reduce(jnp.minimum, [jnp.min(f, initial=1.0) for f in jax.tree.leaves(frac)])
+    r = functools.reduce(jnp.minimum, [min_all(f, initial=1.0) for f in jax.tree.leaves(frac)])
     return jnp.where(r < 1.0, jnp.clip(overshoot * r, 1e-3, 0.5), 0.5) * a
 
 
@@ -190,13 +190,13 @@ def _objective_from_merit(f, g: Multipliers, mult: Multipliers, mu, params: NLPP
     if structure.collision_constraints:
         _, _, _, on = nlp.collision_rows(params, structure)
         use = params.other_mask[None, :] & on[:, None]
-        al = al + jnp.sum(jnp.where(use, nlp.al_term(g.collision, mult.collision, mu), 0.0))
+        al = al + sum_all(jnp.where(use, nlp.al_term(g.collision, mult.collision, mu), 0.0))
     if structure.hard_limits:
-        al = al + jnp.sum(nlp.al_term(g.limits, mult.limits, mu))
+        al = al + sum_all(nlp.al_term(g.limits, mult.limits, mu))
     if structure.static_terms and structure.collision_constraints:
         _, _, _, on = nlp.collision_rows(params, structure)
         use = params.static.mask[None, :] & on[:, None]
-        al = al + jnp.sum(jnp.where(use, nlp.al_term(g.static, mult.static, mu), 0.0))
+        al = al + sum_all(jnp.where(use, nlp.al_term(g.static, mult.static, mu), 0.0))
     return f - al
 
 
@@ -260,7 +260,7 @@ def _evaluate(st: State, lane: Lane, structure: NLPStructure, s: SolverSettings)
     mu = jnp.where(grow, jnp.minimum(st.mu * s.mu_growth, s.mu_max), st.mu)
     mult = tree_where(upd, lam_new, st.mult)
     viol_ref = jnp.where(upd, viol, st.viol_ref)
-    changed = grow | jnp.any(jnp.stack([jnp.any(m != l) for m, l in
+    changed = grow | jnp.any(jnp.stack([any_all(m != l) for m, l in
                                         zip(jax.tree.leaves(mult), jax.tree.leaves(st.mult),
                                             strict=True)]))
     # early stops: a failed line search whose L_A is unchanged would be repeated from
@@ -309,7 +309,7 @@ def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> St
     theta = -grad_proj @ d
     scale = 1.0 + jnp.abs(fy)
     lam_t = jax.tree.map(lambda l, gg: jnp.maximum(0.0, l - mu * gg), mult, g)
-    compl = functools.reduce(jnp.maximum, [jnp.max(lt * jnp.abs(gg), initial=0.0) for lt, gg in
+    compl = functools.reduce(jnp.maximum, [max_all(lt * jnp.abs(gg), initial=0.0) for lt, gg in
                                            zip(jax.tree.leaves(lam_t), jax.tree.leaves(g),
                                                strict=True)])
     conv = (theta <= s.tol_stationarity * scale) & (max_violation(g) <= s.tol_feasibility) & (

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 
 from jaxplan import nlp
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
+from jaxplan.pytree import max_all
 from jaxplan.trajectory import Trajectory
 
 CONVERGED, MAX_ITERS, NON_FINITE, INFEASIBLE, LINE_SEARCH_FAILED = 0, 1, 2, 3, 4
@@ -79,7 +80,7 @@ class Solution(NamedTuple):
 
 def max_violation(g: Multipliers):
     """The largest violation max(0, -g) of the inequality constraints g >= 0."""
-    return functools.reduce(jnp.maximum, [jnp.max(-a, initial=0.0) for a in jax.tree.leaves(g)])
+    return functools.reduce(jnp.maximum, [max_all(-a, initial=0.0) for a in jax.tree.leaves(g)])
 
 
 def zero_multipliers(params: NLPParams, structure: NLPStructure) -> Multipliers:
