@@ -54,7 +54,7 @@ from jaxplan.scenarios import Scenario
 from jaxplan.solve import shard_lanes
 from jaxplan.sweep_csv import SweepError, make_key
 from jaxplan.timing import timed
-from jaxplan.world import ALL_KINDS, static_rows
+from jaxplan.world import ALL_KINDS, PLANE, row_kinds, static_rows
 
 __all__ = [
     "BatchRunner",
@@ -262,14 +262,42 @@ def _prepare(config: Config, point: SweepPoint, scenario: Scenario, m_pad: int,
     return _Prepared(point, scenario, fp, task)
 
 
-def structure_for(config: Config, n_dim: int, n_static: int | None = None) -> RolloutStructure:
+def structure_for(config: Config, n_dim: int, n_static: int | None = None,
+                  scenarios: list[Scenario] | None = None) -> RolloutStructure:
     """The config's static structure for fleets in n_dim dimensions in worlds of
-    ``n_static`` static rows (default: the config's own world's), of every kind (the
-    grid may hold other worlds than the config's)."""
-    # the grid may hold free-end scenarios
-    st = structures(config, only_needed=False, n_static=n_static, static_kinds=ALL_KINDS)
+    ``n_static`` static rows (default: the config's own world's).  ``scenarios``: the
+    grid's (those of n_dim dimensions count): the NLP forms the kinds of static rows
+    their worlds hold and the coast rows only if one of their robots has a free end
+    (:func:`grid_needs`); None: every kind and the coast rows (any grid)."""
+    kinds, free = (ALL_KINDS, True) if scenarios is None else grid_needs(scenarios, n_dim)
+    st = structures(config, only_needed=False, n_static=n_static, static_kinds=kinds)
     nlp = dataclasses.replace(st.planner.nlp, n_dim=n_dim)
+    if not free:
+        nlp = dataclasses.replace(nlp, n_coast_samples=0)
     return dataclasses.replace(st, planner=dataclasses.replace(st.planner, nlp=nlp))
+
+
+def grid_needs(scenarios, n_dim: int) -> tuple[tuple[int, ...], bool]:
+    """What the NLPs of these scenarios' n_dim-dimensional fleets need formed: (the
+    kinds of their worlds' static rows, PLANE always: workspace faces and padding rows;
+    whether a robot of one of them has a free end, so coast rows)."""
+    scs = [s for s in scenarios if s.dim == n_dim]
+    kinds = row_kinds(np.concatenate([np.asarray(static_rows(s.world).kind).reshape(-1)
+                                      for s in scs] + [np.asarray([PLANE])]))
+    free = any(np.any(~(np.asarray(s.rest) | np.asarray(s.has_goal_velocity))) for s in scs)
+    return kinds, bool(free)
+
+
+def _covers(have: RolloutStructure, need: RolloutStructure) -> bool:
+    """Whether structure ``have`` forms every row ``need`` forms (static-row kinds, coast
+    rows), all else equal."""
+    h, n = have.planner.nlp, need.planner.nlp
+    as_have = dataclasses.replace(n, static_kinds=h.static_kinds,
+                                  n_coast_samples=h.n_coast_samples)
+    return (set(n.static_kinds) <= set(h.static_kinds)
+            and n.n_coast_samples <= h.n_coast_samples
+            and dataclasses.replace(need, planner=dataclasses.replace(need.planner,
+                                                                      nlp=as_have)) == have)
 
 
 # ------------------------------------------------------------------------ the program
@@ -403,12 +431,20 @@ class BatchRunner:
         self._structures: dict[tuple[int, int], RolloutStructure] = {}
         CompileCounter.install()
 
-    def _compile(self, fpb, taskb, n_dim: int, batch: int, shape):
+    def structure(self, n_dim: int, r_pad: int, built: dict, batch_scenarios) -> RolloutStructure:
+        """The structure of this runner's n_dim-dimensional batches padded to r_pad static
+        rows: made from every scenario in ``built`` (the grid's, in a sweep) at the first
+        batch and kept while it covers the batches' scenarios (a batch that needs more:
+        one made from ``built`` again, so one more compilation)."""
+        have = self._structures.get((n_dim, r_pad))
+        if have is None or not _covers(have, structure_for(self.config, n_dim, r_pad,
+                                                             list(batch_scenarios))):
+            have = self._structures[(n_dim, r_pad)] = structure_for(
+                self.config, n_dim, r_pad, [*built.values(), *batch_scenarios])
+        return have
+
+    def _compile(self, fpb, taskb, n_dim: int, batch: int, shape, structure):
         m_pad, _, n_wp, r_pad = shape
-        structure = self._structures.get((n_dim, r_pad))
-        if structure is None:
-            structure = self._structures[(n_dim, r_pad)] = structure_for(self.config, n_dim,
-                                                                          r_pad)
         sh = cpu_shards(batch)
         leaves, tree = jax.tree.flatten((fpb, taskb))
         pkey = (structure, sh, tree, tuple((np.shape(x), np.asarray(x).dtype.str)
@@ -472,10 +508,12 @@ class BatchRunner:
         taskb = stack_trees([c.task for c in full])
         sc = preps[0].scenario
         shape = (m_pad, sc.dim, sc.num_waypoints, r_pad)
-        key = (shape, batch)
+        structure = self.structure(sc.dim, r_pad, built, [p.scenario for p in preps])
+        key = (shape, batch, structure)
         compiled = self._compiled.get(key)
         if compiled is None:
-            compiled = self._compiled[key] = self._compile(fpb, taskb, sc.dim, batch, shape)
+            compiled = self._compiled[key] = self._compile(fpb, taskb, sc.dim, batch, shape,
+                                                           structure)
             if on_compiled is not None:
                 on_compiled()
 

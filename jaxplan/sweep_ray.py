@@ -48,6 +48,7 @@ CPUS_ENV = "JAXPLAN_RAY_CPUS"  # CPUs (so workers) of a local instance; default:
 LOCAL_OBJECT_STORE_BYTES = 256 << 20  # a local instance's object store: rows are small
 
 _RUNNERS: dict[str, BatchRunner] = {}  # in a worker: the config text's runner (one)
+_GRIDS: dict[str, dict] = {}  # ... and its grid's scenarios
 
 
 def jaxplan_sweep_batch(config_text: str, source: str, points: tuple[SweepPoint, ...],
@@ -60,12 +61,18 @@ def jaxplan_sweep_batch(config_text: str, source: str, points: tuple[SweepPoint,
     worker's process id)."""
     runner = _RUNNERS.get(config_text)
     if runner is None:
+        from jaxplan.sweep import sweep_points
+
         _RUNNERS.clear()
+        _GRIDS.clear()
         config = parse_config(tomllib.loads(config_text), source=source)
         runner = _RUNNERS[config_text] = BatchRunner(config)
+        # the whole grid's scenarios, as the local engine has them: the same structure
+        # (static-row kinds, coast rows) for every batch, so the same program and rows
+        _GRIDS[config_text] = build_scenarios(config, sweep_points(config))
     t = runner.tally
     before = (t.compilations, t.cache_hits, t.compile_s, t.run_s)
-    rows = runner.rows(points, build_scenarios(runner.config, points), m_pad, batch)
+    rows = runner.rows(points, _GRIDS[config_text], m_pad, batch)
     return rows, {"compilations": t.compilations - before[0],
                   "cache_hits": t.cache_hits - before[1], "compile_s": t.compile_s - before[2],
                   "run_s": t.run_s - before[3], "pid": os.getpid()}
