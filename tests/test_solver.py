@@ -472,13 +472,17 @@ def test_solution_is_differentiable_in_the_weights():
     def out(q_obs, q_lim, x_start):
         w = p.weights._replace(q_obs=q_obs, q_lim=q_lim)
         s = solve.solve_differentiable(p._replace(weights=w), x_start, st, tight)
-        return jnp.stack([s.x[-1], s.objective]), s
+        y = jnp.stack([s.x[-1], s.objective])
+        return y, (y, s)
 
-    f = jax.jit(out)
+    # one program (the solve, and the derivative by the implicit function theorem)
+    # gives the derivatives and the values the finite differences take
+    jac_and_value = jax.jit(jax.jacrev(out, argnums=(0, 1), has_aux=True))
+    f = lambda a, b, x_start: jac_and_value(a, b, x_start)[1]
     q = (jnp.asarray(10.0), jnp.asarray(1.0))
     (y, sol) = f(*q, x0)
     assert sol.status == solve.MAX_ITERS and sol.decrement < 1e-20  # converged to rounding
-    jac = jax.jit(jax.jacrev(lambda a, b: out(a, b, sol.x)[0], argnums=(0, 1)))(*q)
+    jac = jac_and_value(*q, sol.x)[0]
     for k, qk in enumerate(q):
         # central differences: truncation ~ (h / q)^2 ~ 1e-7 relative; rounding ~ the
         # solves' own error (up to ~1e-10 in log T at tol 0 after 80 iterations) / h:
