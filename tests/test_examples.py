@@ -85,11 +85,11 @@ def test_solve_batch():
     from jaxplan.solve import STATUS_NAMES
 
     ex = load("solve_batch")
-    r = ex.main(["--robots", "4"])
+    r = ex.main(["--robots", "3"])  # 3: the whole batch steps at once (one step compiled)
     sol, P = r["solution"], r["params"]
-    assert len(r["status"]) == 4
+    assert len(r["status"]) == 3
     assert set(r["status"]) <= set(STATUS_NAMES.values())
-    assert r["status"] == ["converged"] * 4  # an easy batch
+    assert r["status"] == ["converged"] * 3  # an easy batch
     assert np.all(np.asarray(sol.status) == 0)
     assert np.all(np.isfinite(r["objective"]))
     np.testing.assert_array_equal(r["objective"], np.asarray(sol.objective))
