@@ -93,8 +93,8 @@ from jaxplan.sweep_batch import (
     SweepPoint,
     Tally,
     build_scenarios,
-    scenario_sources,
     structure_for,
+    sweep_points,
 )
 from jaxplan.sweep_csv import (
     SweepError,
@@ -176,16 +176,6 @@ class SweepResult:
     engine: str = "local"
     missing: int = 0
     cache_hits: int = 0
-
-
-def sweep_points(config: Config) -> list[SweepPoint]:
-    """The whole grid of a config's [sweep], in run order: scenario, q_obs, q_lim, seed."""
-    sw = config.sweep
-    return [SweepPoint(float(qo), float(ql), src.label, int(s))
-            for src in scenario_sources(config)
-            for qo in dict.fromkeys(sw.q_obs)
-            for ql in dict.fromkeys(sw.q_lim)
-            for s in dict.fromkeys(sw.seeds)]
 
 
 # ------------------------------------------------------------------------ config guard

@@ -4,6 +4,7 @@ point's sweep.csv row is the same whatever the engine.
 
     SweepPoint(q_obs, q_lim, scenario, seed)            one run of the grid; .key
     scenario_sources(config) -> [ScenarioSource]        the grid's scenarios: label, build(seed)
+    sweep_points(config) -> [SweepPoint]                the whole grid, in run order
     build_scenarios(config, points) -> {(label, seed): Scenario}
     BatchRunner(config, say).rows(points, built, m_pad, batch, on_compiled=None, *,
                                   weights=None, r_pad=None) -> [row]
@@ -66,7 +67,9 @@ __all__ = [
     "csv_row",
     "pad_robots",
     "scenario_sources",
+    "grid_needs",
     "structure_for",
+    "sweep_points",
     "with_weights",
 ]
 
@@ -122,6 +125,16 @@ def scenario_sources(config: Config) -> list[ScenarioSource]:
         return build
 
     return [ScenarioSource(n, builder(n)) for n in dict.fromkeys(sw.scenarios)]
+
+
+def sweep_points(config: Config) -> list[SweepPoint]:
+    """The whole grid of a config's [sweep], in run order: scenario, q_obs, q_lim, seed."""
+    sw = config.sweep
+    return [SweepPoint(float(qo), float(ql), src.label, int(s))
+            for src in scenario_sources(config)
+            for qo in dict.fromkeys(sw.q_obs)
+            for ql in dict.fromkeys(sw.q_lim)
+            for s in dict.fromkeys(sw.seeds)]
 
 
 def build_scenarios(config: Config, points) -> dict[tuple[str, int], Scenario]:

@@ -37,7 +37,7 @@ from collections.abc import Callable
 
 from jaxplan import env_positive_int
 from jaxplan.config import Config, config_to_toml, parse_config
-from jaxplan.sweep_batch import BatchRunner, SweepPoint, Tally, build_scenarios
+from jaxplan.sweep_batch import BatchRunner, SweepPoint, Tally, build_scenarios, sweep_points
 from jaxplan.sweep_csv import SweepError
 
 __all__ = ["RETRIES", "TASK_NAME", "jaxplan_sweep_batch", "run_batches"]
@@ -61,8 +61,6 @@ def jaxplan_sweep_batch(config_text: str, source: str, points: tuple[SweepPoint,
     worker's process id)."""
     runner = _RUNNERS.get(config_text)
     if runner is None:
-        from jaxplan.sweep import sweep_points
-
         _RUNNERS.clear()
         _GRIDS.clear()
         config = parse_config(tomllib.loads(config_text), source=source)

@@ -123,12 +123,13 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
     objective = jax.jit(jax.vmap(nlp.objective, in_axes=(0, None, None)), static_argnums=2)
     boundary = jax.jit(jax.vmap(nlp.boundary_vector, in_axes=(None, 0)))
     guesses = jax.jit(jax.vmap(lambda q: solve.initial_guess(q, st, swerve=False)))  # one program
+    predict = jax.jit(predict_arrays)  # (op by op, each call would compile its loops again)
     for rest in (False, True):
         P = fleet_params(pos, np.zeros_like(pos), np.zeros_like(pos), goals, rest=rest)
         x0 = np.asarray(guesses(P))
         for i in range(3):
             p = index_params(P, i)
-            pred = predict_arrays(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
+            pred = predict(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, 1.0)
             Ts = float(pred.duration) * solve.guess.GUESS_T_FACTORS
             e = np.asarray(boundary(p, jnp.asarray(Ts)))  # (K, ...)
             cands, xs = [], []
@@ -138,17 +139,18 @@ def test_initial_guess_is_the_best_candidate_of_the_grid():
                     xs.append(np.concatenate([np.broadcast_to(z, (3, st.nz)).ravel(),
                                               [np.log(T)]]))
                     cands.append((a, T))
-            vals = np.asarray(objective(jnp.asarray(np.stack(xs)), p, free))
+            # the candidates and, last, the guess (one call: one program)
+            vals = np.asarray(objective(jnp.asarray(np.stack(xs + [x0[i]])), p, free))
+            got, vals = float(vals[-1]), vals[:-1]
             best, arg = float(vals[np.argmin(vals)]), cands[int(np.argmin(vals))]
-            kc = nlp.kind_constants(p.rest, free)
-            got = float(nlp.evaluate_terms(jnp.asarray(x0[i]), p, free, kc, None, 1.0))
             np.testing.assert_allclose(got, best, rtol=1e-12)
             np.testing.assert_allclose(np.exp(x0[i, -1]), arg[1], rtol=1e-12)
             if rest:
                 assert np.all(x0[i, :-1] == 0.0)
             else:
                 assert arg[0] == 0.5  # the halfway shape wins here
-                v0 = np.asarray(objective(jnp.asarray(np.stack(xs[:len(Ts)])), p, free))
+                v0 = vals[:len(Ts)]  # the shape 0 (the free path) at every T
+                assert solve.guess.GUESS_SHAPES[0] == 0.0
                 assert arg[1] < Ts[int(np.argmin(v0))]  # shorter than the free path's T
     # the bisection of the grid finds its minimum: random NLPs (moving starts, rest and
     # free ends, two segments), all candidates evaluated at once here

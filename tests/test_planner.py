@@ -369,8 +369,8 @@ def test_a_silent_robot_is_held_where_it_can_have_braked_to():
     preds, inflate, floor = jax.jit(lambda vw: view_predictions(fp, vw))(views)
     held = np.asarray(preds.evaluate(0.0))[1, 0]  # robot 1's view of robot 0
     # reference: robot 0's own path, its prediction for one period, then its braking plan
-    pr = predict_arrays(p[:1], v[:1], a[:1], goal[:1], jnp.zeros((1, 3)), jnp.zeros((1, 3)),
-                        jnp.zeros(1, bool), 6.0)
+    pr = jax.jit(predict_arrays)(p[:1], v[:1], a[:1], goal[:1], jnp.zeros((1, 3)),
+                                 jnp.zeros((1, 3)), jnp.zeros(1, bool), 6.0)
     t1 = np.linspace(0.0, 0.125, 50)
     path = [np.asarray(pr.evaluate(jnp.asarray(t1)[:, None]))[:, 0]]
     s1 = [x[0][None] for x in pr.state_at(jnp.asarray([0.125]))]
