@@ -181,7 +181,7 @@ def test_forced_solver_failure_keeps_previous_plan(tiny_config):
         assert not np.any(np.isnan(np.asarray(x)))
     # nothing is accepted (zero iterations never converge, no violation is small enough)
     # but the solves are finite: they are flown (BEST_EFFORT), not the old plan
-    fp_fail = fp._replace(settings=fp.settings._replace(max_iters=0),
+    fp_fail = fp._replace(settings=fp.settings._replace(max_iters=np.int32(0)),
                           accept_violation=jnp.asarray(-1.0))
     st3, rec3 = f(fp_fail, task, st2)
     assert np.all(np.asarray(rec3.info.status) != solve.CONVERGED)
