@@ -67,7 +67,7 @@ __all__ = [
     "csv_row",
     "pad_robots",
     "scenario_sources",
-    "grid_needs",
+    "grid_kinds",
     "structure_for",
     "sweep_points",
     "with_weights",
@@ -280,35 +280,29 @@ def structure_for(config: Config, n_dim: int, n_static: int | None = None,
     """The config's static structure for fleets in n_dim dimensions in worlds of
     ``n_static`` static rows (default: the config's own world's).  ``scenarios``: the
     grid's (those of n_dim dimensions count): the NLP forms the kinds of static rows
-    their worlds hold and the coast rows only if one of their robots has a free end
-    (:func:`grid_needs`); None: every kind and the coast rows (any grid)."""
-    kinds, free = (ALL_KINDS, True) if scenarios is None else grid_needs(scenarios, n_dim)
+    their worlds hold (:func:`grid_kinds`; the solutions are bitwise those of every
+    kind); None: every kind.  The coast rows are always formed (the grid may hold free
+    ends; leaving them out where it holds none rounds differently)."""
+    kinds = ALL_KINDS if scenarios is None else grid_kinds(scenarios, n_dim)
     st = structures(config, only_needed=False, n_static=n_static, static_kinds=kinds)
     nlp = dataclasses.replace(st.planner.nlp, n_dim=n_dim)
-    if not free:
-        nlp = dataclasses.replace(nlp, n_coast_samples=0)
     return dataclasses.replace(st, planner=dataclasses.replace(st.planner, nlp=nlp))
 
 
-def grid_needs(scenarios, n_dim: int) -> tuple[tuple[int, ...], bool]:
-    """What the NLPs of these scenarios' n_dim-dimensional fleets need formed: (the
-    kinds of their worlds' static rows, PLANE always: workspace faces and padding rows;
-    whether a robot of one of them has a free end, so coast rows)."""
-    scs = [s for s in scenarios if s.dim == n_dim]
-    kinds = row_kinds(np.concatenate([np.asarray(static_rows(s.world).kind).reshape(-1)
-                                      for s in scs] + [np.asarray([PLANE])]))
-    free = any(np.any(~(np.asarray(s.rest) | np.asarray(s.has_goal_velocity))) for s in scs)
-    return kinds, bool(free)
+def grid_kinds(scenarios, n_dim: int) -> tuple[int, ...]:
+    """The kinds of static rows the NLPs of these scenarios' n_dim-dimensional fleets
+    hold: their worlds' obstacles' and PLANE (workspace faces and padding rows)."""
+    kinds = [np.asarray(static_rows(s.world).kind).reshape(-1)
+             for s in scenarios if s.dim == n_dim]
+    return row_kinds(np.concatenate(kinds + [np.asarray([PLANE])]))
 
 
 def _covers(have: RolloutStructure, need: RolloutStructure) -> bool:
-    """Whether structure ``have`` forms every row ``need`` forms (static-row kinds, coast
-    rows), all else equal."""
+    """Whether structure ``have`` forms every kind of static row ``need`` forms, all
+    else equal."""
     h, n = have.planner.nlp, need.planner.nlp
-    as_have = dataclasses.replace(n, static_kinds=h.static_kinds,
-                                  n_coast_samples=h.n_coast_samples)
+    as_have = dataclasses.replace(n, static_kinds=h.static_kinds)
     return (set(n.static_kinds) <= set(h.static_kinds)
-            and n.n_coast_samples <= h.n_coast_samples
             and dataclasses.replace(need, planner=dataclasses.replace(need.planner,
                                                                       nlp=as_have)) == have)
 
@@ -446,9 +440,10 @@ class BatchRunner:
 
     def structure(self, n_dim: int, r_pad: int, built: dict, batch_scenarios) -> RolloutStructure:
         """The structure of this runner's n_dim-dimensional batches padded to r_pad static
-        rows: made from every scenario in ``built`` (the grid's, in a sweep) at the first
-        batch and kept while it covers the batches' scenarios (a batch that needs more:
-        one made from ``built`` again, so one more compilation)."""
+        rows: the kinds of static rows of every scenario in ``built`` (the grid's, in a
+        sweep; :func:`structure_for`), made at the first batch and kept while it covers
+        the batches' scenarios (a batch that needs more: one made from ``built`` again,
+        so one more compilation)."""
         have = self._structures.get((n_dim, r_pad))
         if have is None or not _covers(have, structure_for(self.config, n_dim, r_pad,
                                                              list(batch_scenarios))):

@@ -413,27 +413,27 @@ def test_mixed_fleet_sizes_share_one_compilation(tmp_path):
         assert float(got[c]) == pytest.approx(float(ref[c]), rel=1e-6, abs=1e-9), c
 
 
-def test_the_batch_structure_forms_what_the_grid_needs():
+def test_the_batch_structure_forms_the_kinds_the_grid_needs():
     """structure_for with the grid's scenarios forms the static-row kinds of their
-    worlds (PLANE always: workspace faces, padding) and the coast rows only where one of
-    their robots has a free end; without scenarios, every kind and the coast rows.  A
-    runner keeps its structure while it covers a batch and makes a larger one (never a
-    smaller) when a batch needs more."""
+    worlds (PLANE always: workspace faces, padding); without scenarios, every kind; the
+    coast rows always (a rest-ended grid too).  A runner keeps its structure while it
+    covers a batch and makes a larger one (never a smaller) when a batch needs more."""
     from jaxplan.sweep import sweep_points
-    from jaxplan.sweep_batch import BatchRunner, build_scenarios, grid_needs, structure_for
+    from jaxplan.sweep_batch import BatchRunner, build_scenarios, grid_kinds, structure_for
     from jaxplan.world import ALL_KINDS, PLANE, row_kinds, static_rows
 
     sweep = SWEEP_TOML[SWEEP_TOML.index("[sweep]"):].replace("seeds = [0, 1]", "seeds = [0]")
     R = 64
-    # the tiny fleet (its own scenario) with rest ends: no coast rows, PLANE only
+    # the tiny fleet (its own scenario) with rest ends: PLANE only, the coast rows kept
     rest = _config(TINY_TOML + '[planner]\nend_state = "rest"\n' + sweep)
     tiny = list(build_scenarios(rest, sweep_points(rest)).values())
-    assert grid_needs(tiny, 3) == ((PLANE,), False)
+    assert grid_kinds(tiny, 3) == (PLANE,)
     st = structure_for(rest, 3, R, tiny)
-    assert st.planner.nlp.static_kinds == (PLANE,) and st.planner.nlp.n_coast_samples == 0
+    assert st.planner.nlp.static_kinds == (PLANE,) and st.planner.nlp.n_coast_samples == 8
     every = structure_for(rest, 3, R)
     assert every.planner.nlp.static_kinds == ALL_KINDS and every.planner.nlp.n_coast_samples == 8
-    # registry worlds (free ends): the pillars' kinds, coast rows
+    assert dataclasses.replace(st.planner.nlp, static_kinds=ALL_KINDS) == every.planner.nlp
+    # registry worlds: the pillars' kinds
     cfg = _config(SWEEP_TOML.replace("seeds = [0, 1]", "seeds = [0]")
                   + 'scenarios = ["pillars", "stacked"]\n')
     built = build_scenarios(cfg, sweep_points(cfg))
@@ -441,11 +441,10 @@ def test_the_batch_structure_forms_what_the_grid_needs():
     stacked = [s for (label, _), s in built.items() if label == "stacked"]
     want = row_kinds(np.append(static_rows(pillars[0].world).kind, PLANE))
     assert want != (PLANE,) and want != ALL_KINDS  # the test needs a world of some kinds
-    assert grid_needs(pillars + stacked, 3) == (want, True)
-    assert grid_needs(stacked, 3) == ((PLANE,), True)
-    assert grid_needs(stacked, 2) == ((PLANE,), False)  # no 2-D fleet: nothing
-    grid = structure_for(cfg, 3, R, pillars + stacked)
-    assert grid.planner.nlp.static_kinds == want and grid.planner.nlp.n_coast_samples == 8
+    assert grid_kinds(pillars + stacked, 3) == want
+    assert grid_kinds(stacked, 3) == (PLANE,)
+    assert grid_kinds(pillars, 2) == (PLANE,)  # no 2-D fleet: PLANE alone
+    assert structure_for(cfg, 3, R, pillars + stacked).planner.nlp.static_kinds == want
     # the runner: a structure from what it was given, kept while it covers the batch
     runner = BatchRunner(cfg)
     only_stacked = {k: s for k, s in built.items() if k[0] == "stacked"}
