@@ -297,16 +297,6 @@ def grid_kinds(scenarios, n_dim: int) -> tuple[int, ...]:
     return row_kinds(np.concatenate(kinds + [np.asarray([PLANE])]))
 
 
-def _covers(have: RolloutStructure, need: RolloutStructure) -> bool:
-    """Whether structure ``have`` forms every kind of static row ``need`` forms, all
-    else equal."""
-    h, n = have.planner.nlp, need.planner.nlp
-    as_have = dataclasses.replace(n, static_kinds=h.static_kinds)
-    return (set(n.static_kinds) <= set(h.static_kinds)
-            and dataclasses.replace(need, planner=dataclasses.replace(need.planner,
-                                                                      nlp=as_have)) == have)
-
-
 # ------------------------------------------------------------------------ the program
 
 
@@ -445,8 +435,9 @@ class BatchRunner:
         the batches' scenarios (a batch that needs more: one made from ``built`` again,
         so one more compilation)."""
         have = self._structures.get((n_dim, r_pad))
-        if have is None or not _covers(have, structure_for(self.config, n_dim, r_pad,
-                                                             list(batch_scenarios))):
+        # all else is the config's, n_dim's and r_pad's: only the kinds can fall short
+        if have is None or not set(grid_kinds(batch_scenarios, n_dim)) <= set(
+                have.planner.nlp.static_kinds):
             have = self._structures[(n_dim, r_pad)] = structure_for(
                 self.config, n_dim, r_pad, [*built.values(), *batch_scenarios])
         return have
