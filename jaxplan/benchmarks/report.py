@@ -209,8 +209,15 @@ def _split_why(t: dict) -> str:
         parts.append(f"{t['slot_steps']:g} steps of {t['pool']} slots at "
                      f"{t['step_us_pool']:.0f} us "
                      f"({t['step_us_pool_without_others']:.0f} us without the others)")
-    parts.append(f"{_ms(t['fixed_ms'])} for the call without iterations (set-up, one "
+    fixed = f"{_ms(t['fixed_ms'])} for the call's set-up and report"
+    if "merit_ms" in t:  # the call allowed no iteration, less its evaluation of L_A per lane
+        fixed += (f" (the call allowed no iteration, {_ms(t['no_iteration_ms'])}, less the "
+                  f"evaluation of L_A per lane it makes for its report, {_ms(t['merit_ms'])} "
+                  "timed alone)")
+    else:
+        fixed = (f"{_ms(t['fixed_ms'])} for the call without iterations (set-up, one "
                  "evaluation of L_A per lane, the report)")
+    parts.append(fixed)
     where = "the busier device: " if t["shards"] > 1 else ""
     return (f"{t['evaluations_per_replan']:.0f} evaluations per replan (per lane median "
             f"{t['evaluations_lane_median']:g}, max {t['evaluations_lane_max']}); {where}"

@@ -274,19 +274,46 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
 
 
 def _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps):
-    """(Solution, ms, ms of the same call allowed no iteration) of solve_batch: the second
-    is the call's fixed part (setting the lanes up, reporting them; the settings are
-    traced, so it is the same program)."""
+    """(Solution, ms, fixed ms, ms allowed no iteration, ms of the evaluation) of
+    solve_batch: the fixed part is the call's time apart
+    from its steps (setting the lanes up, reporting them): the same call allowed no
+    iteration (the settings are traced, so it is the same program), less the one
+    evaluation of L_A and the constraints per lane that such a call makes for its report
+    (timed alone, on the same lanes and devices: :func:`_merit_ms`); a call that iterates
+    makes that evaluation as its first step."""
     fn = lambda s: solve.solve_batch(P, x0, structure, s, mult, mu, pool=pool, shards=shards)
     sol, ms = _timed(fn, settings, repeats=reps)
     _, ms0 = _timed(fn, settings._replace(max_iters=jax.device_put(np.int32(0))), repeats=reps)
-    return sol, ms, ms0
+    me = _merit_ms(structure, P, x0, mult, mu, shards, reps)
+    return sol, ms, max(ms0 - me, 0.0), ms0, me
+
+
+@functools.partial(jax.jit, static_argnames=("structure", "shards"))
+def _merit_batch(P, x0, mult, mu, structure, shards):
+    from jaxplan import nlp
+    from jaxplan.solve.devices import shard_lanes
+
+    def one(p, x, m, u):
+        if m.static is None:  # as init_lane: no static rows' multipliers given, zeros
+            m = m._replace(static=solve.zero_multipliers(p, structure).static)
+        return nlp.merit_and_constraints(x, p, structure, nlp.kind_constants(p.rest, structure),
+                                         m, u)
+    return shard_lanes(jax.vmap(one), (P, x0, mult, mu), shards)
+
+
+def _merit_ms(structure, P, x0, mult, mu, shards, reps) -> float:
+    """Median ms of L_A and the constraints evaluated once per lane (what init_lane does
+    for a solve allowed no iteration), the lanes split over ``shards`` devices as
+    solve_batch splits them."""
+    args = solve.as_strong_dtypes((P, x0, mult, mu))
+    return _timed(lambda *a: _merit_batch(*a, structure=structure, shards=shards), *args,
+                  repeats=reps)[1]
 
 
 def _time_split(structure, settings, cases, reps: int = 5) -> dict:
     """Where a fleet replan's time goes, accounted on the first of the warm ``cases`` of
     :func:`_fleet_cases` (solve_batch's default pool and devices): its time = the call's
-    fixed part (the same call allowed no iteration) + its steps x the mean cost of a step.
+    fixed part (:func:`_accounted`) + its steps x the mean cost of a step.
     The steps are those of the busiest device, replayed from each lane's evaluations
     (Solution.evaluations, solve.pool_steps): steps holding every lane of the device
     (lockstep) and steps of ``pool`` slots.  A lockstep step's cost comes from the same
@@ -306,18 +333,19 @@ def _time_split(structure, settings, cases, reps: int = 5) -> dict:
         return max((solve.pool_steps(ev[d::shards], pool) for d in range(shards)), key=sum)
 
     def account(P, mult, pool):
-        sol, ms, ms0 = _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps)
+        sol, ms, ms0, ms_none, ms_eval = _accounted(structure, settings, P, x0, mult, mu, pool,
+                                                    shards, reps)
         lock, slots = steps_of(sol, pool)
         c_all = 0.0
         if lock:  # the lockstep steps' cost: the lanes solved in lockstep alone
-            sol_l, ms_l, ms0_l = _accounted(structure, settings, P, x0, mult, mu, per, shards,
-                                            reps)
+            sol_l, ms_l, ms0_l, _, _ = _accounted(structure, settings, P, x0, mult, mu, per,
+                                                  shards, reps)
             c_all = max(ms_l - ms0_l, 0.0) / max(1, steps_of(sol_l, per)[0])
         c_slot = max(ms - ms0 - lock * c_all, 0.0) / max(1, slots)
-        return sol, ms, ms0, lock, slots, c_all, c_slot
+        return sol, ms, ms0, lock, slots, c_all, c_slot, ms_none, ms_eval
 
     pool = solve.default_pool(per, n_others=n_others)
-    sol, ms, ms0, lock, slots, c_all, c_slot = account(P, mult, pool)
+    sol, ms, ms0, lock, slots, c_all, c_slot, ms_none, ms_eval = account(P, mult, pool)
     bare = P._replace(others=jax.tree.map(lambda a: a[:, :0], P.others),
                       other_mask=P.other_mask[:, :0], other_radius=P.other_radius[:, :0])
     bare_acc = account(bare, mult._replace(collision=mult.collision[..., :0]), pool)
@@ -326,7 +354,8 @@ def _time_split(structure, settings, cases, reps: int = 5) -> dict:
                 evaluations_per_replan=int(ev.sum()),
                 evaluations_lane_median=float(np.median(ev)),
                 evaluations_lane_max=int(ev.max()), lockstep_steps=lock, slot_steps=slots,
-                fixed_ms=ms0, step_us_all_lanes=1e3 * c_all, step_us_pool=1e3 * c_slot,
+                fixed_ms=ms0, no_iteration_ms=ms_none, merit_ms=ms_eval,
+                step_us_all_lanes=1e3 * c_all, step_us_pool=1e3 * c_slot,
                 step_us_pool_without_others=1e3 * bare_acc[6],
                 step_us_all_lanes_without_others=1e3 * bare_acc[5], measured_ms=ms)
 
