@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import jax
@@ -230,6 +231,40 @@ def step_runner(structure: RolloutStructure):
     return _STEP_CACHE[key]
 
 
+# this process's compiled replan periods (backend "ideal"), the most recently used last:
+# another run of the same structure and shapes in this process (a notebook's, the tests')
+# reuses one (``lower().compile()``, which times the compile apart, does not use jit's
+# own cache of compiled programs)
+_PROGRAMS: OrderedDict = OrderedDict()
+MAX_PROGRAMS = 8
+
+
+def _program_key(structure: RolloutStructure, *args):
+    """What a compiled replan period is keyed on: the structure but its steps, and its
+    arguments' tree, shapes and dtypes (as jit keys a program)."""
+    leaves, tree = jax.tree.flatten(args)
+    aval = lambda x: (np.shape(x), np.dtype(x.dtype if hasattr(x, "dtype") else  # noqa: E731
+                                            np.asarray(x).dtype).str,
+                      bool(getattr(x, "weak_type", False)))
+    return dataclasses.replace(structure, steps=0), tree, tuple(aval(x) for x in leaves)
+
+
+def compiled_step(fp: FleetParams, task: Task, st, structure: RolloutStructure):
+    """(the compiled replan period of :func:`step_runner`, seconds spent compiling it):
+    compiled once per structure and shapes in this process and kept (the last
+    :data:`MAX_PROGRAMS`); a kept one costs 0 s."""
+    key = _program_key(structure, fp, task, st)
+    compiled = _PROGRAMS.get(key)
+    if compiled is not None:
+        _PROGRAMS.move_to_end(key)
+        return compiled, 0.0
+    compiled, compile_s = timed(lambda: step_runner(structure).lower(fp, task, st).compile())
+    _PROGRAMS[key] = compiled
+    while len(_PROGRAMS) > MAX_PROGRAMS:
+        _PROGRAMS.popitem(last=False)
+    return compiled, compile_s
+
+
 def simulate(fp: FleetParams, task: Task, structure: RolloutStructure, progress=None):
     """Run one scenario, one jitted replan period per call, timing every replan.
 
@@ -238,12 +273,12 @@ def simulate(fp: FleetParams, task: Task, structure: RolloutStructure, progress=
     host costs ~0.1 ms per replan and gives every replan's wall time and a live
     progress bar.
 
-    Returns (final state, records stacked over ``structure.steps``, compile_s, run_s,
+    Returns (final state, records stacked over ``structure.steps``, compile_s (0 where
+    this process compiled the same program before: :func:`compiled_step`), run_s,
     replan_ms (steps,)).  ``progress``: optional callable(n_steps_done).
     """
-    fn = step_runner(structure)
     st = initial_state(task, structure)
-    compiled, compile_s = timed(lambda: fn.lower(fp, task, st).compile())
+    compiled, compile_s = compiled_step(fp, task, st, structure)
     st, records, run_s, ms = _run_periods(lambda st: compiled(fp, task, st), st,
                                           structure.steps, progress)
     return st, records, compile_s, run_s, ms
@@ -667,9 +702,12 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
 
         from jaxplan.progress import AfterFirstUpdate
 
-        print(f"{config.name}: compiling the planner ({scenario.start.shape[0]} robots, "
-              f"{structure.steps} replans, backend {config.sim.backend})", file=sys.stderr,
-              flush=True)
+        kept = config.sim.backend != "mjx" and _program_key(
+            structure, fp, task, initial_state(task, structure)) in _PROGRAMS
+        print(f"{config.name}: " + ("the planner is compiled already (in this process)" if kept
+                                    else "compiling the planner") +
+              f" ({scenario.start.shape[0]} robots, {structure.steps} replans, backend "
+              f"{config.sim.backend})", file=sys.stderr, flush=True)
         bar = AfterFirstUpdate(structure.steps, config.name, "replan", leave=False)
 
     def _prog(n):
