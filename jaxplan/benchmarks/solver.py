@@ -275,12 +275,11 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
 
 def _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps):
     """(Solution, ms, fixed ms, ms allowed no iteration, ms of the evaluation) of
-    solve_batch: the fixed part is the call's time apart
-    from its steps (setting the lanes up, reporting them): the same call allowed no
-    iteration (the settings are traced, so it is the same program), less the one
-    evaluation of L_A and the constraints per lane that such a call makes for its report
-    (timed alone, on the same lanes and devices: :func:`_merit_ms`); a call that iterates
-    makes that evaluation as its first step."""
+    solve_batch: the fixed part is the call's time apart from its steps (setting the
+    lanes up, placing the arguments, reporting them): the same call allowed no iteration
+    (the settings are traced, so it is the same program), less the one evaluation of L_A
+    and the constraints per lane that such a call makes for its report (:func:`_merit_ms`);
+    a call that iterates makes that evaluation as its first step."""
     fn = lambda s: solve.solve_batch(P, x0, structure, s, mult, mu, pool=pool, shards=shards)
     sol, ms = _timed(fn, settings, repeats=reps)
     _, ms0 = _timed(fn, settings._replace(max_iters=jax.device_put(np.int32(0))), repeats=reps)
@@ -288,26 +287,33 @@ def _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps):
     return sol, ms, max(ms0 - me, 0.0), ms0, me
 
 
-@functools.partial(jax.jit, static_argnames=("structure", "shards"))
-def _merit_batch(P, x0, mult, mu, structure, shards):
+@functools.partial(jax.jit, static_argnames=("structure", "shards", "evaluate"))
+def _merit_batch(P, x0, mult, mu, structure, shards, evaluate):
     from jaxplan import nlp
     from jaxplan.solve.devices import shard_lanes
 
     def one(p, x, m, u):
+        if not evaluate:
+            return jnp.sum(x)
         if m.static is None:  # as init_lane: no static rows' multipliers given, zeros
             m = m._replace(static=solve.zero_multipliers(p, structure).static)
-        return nlp.merit_and_constraints(x, p, structure, nlp.kind_constants(p.rest, structure),
+        f, g = nlp.merit_and_constraints(x, p, structure, nlp.kind_constants(p.rest, structure),
                                          m, u)
+        return f + sum(jnp.sum(a) for a in jax.tree.leaves(g))
+
     return shard_lanes(jax.vmap(one), (P, x0, mult, mu), shards)
 
 
 def _merit_ms(structure, P, x0, mult, mu, shards, reps) -> float:
     """Median ms of L_A and the constraints evaluated once per lane (what init_lane does
     for a solve allowed no iteration), the lanes split over ``shards`` devices as
-    solve_batch splits them."""
+    solve_batch splits them: a program that evaluates them against the same program
+    without the evaluation (the same arguments, one number out per lane), so that placing
+    the arguments is not counted."""
     args = solve.as_strong_dtypes((P, x0, mult, mu))
-    return _timed(lambda *a: _merit_batch(*a, structure=structure, shards=shards), *args,
-                  repeats=reps)[1]
+    ms = [_timed(functools.partial(_merit_batch, structure=structure, shards=shards,
+                                   evaluate=e), *args, repeats=reps)[1] for e in (True, False)]
+    return max(ms[0] - ms[1], 0.0)
 
 
 def _time_split(structure, settings, cases, reps: int = 5) -> dict:
