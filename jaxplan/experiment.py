@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import jax
@@ -47,7 +46,7 @@ from jaxplan.planner import (
 )
 from jaxplan.rollout import RolloutStructure, Task, initial_state, step
 from jaxplan.scenarios import Scenario
-from jaxplan.timing import timed
+from jaxplan.timing import KeptPrograms, arg_key, timed
 from jaxplan.world import (
     ALL_KINDS,
     PLANE,
@@ -231,38 +230,27 @@ def step_runner(structure: RolloutStructure):
     return _STEP_CACHE[key]
 
 
-# this process's compiled replan periods (backend "ideal"), the most recently used last:
-# another run of the same structure and shapes in this process (a notebook's, the tests')
-# reuses one (``lower().compile()``, which times the compile apart, does not use jit's
-# own cache of compiled programs)
-_PROGRAMS: OrderedDict = OrderedDict()
-MAX_PROGRAMS = 8
+# this process's compiled replan periods (backend "ideal"): another run of the same
+# structure and shapes in this process (a notebook's, the tests') reuses one
+_PROGRAMS = KeptPrograms(8)
 
 
-def _program_key(structure: RolloutStructure, *args):
-    """What a compiled replan period is keyed on: the structure but its steps, and its
-    arguments' tree, shapes and dtypes (as jit keys a program)."""
-    leaves, tree = jax.tree.flatten(args)
-    aval = lambda x: (np.shape(x), np.dtype(x.dtype if hasattr(x, "dtype") else  # noqa: E731
-                                            np.asarray(x).dtype).str,
-                      bool(getattr(x, "weak_type", False)))
-    return dataclasses.replace(structure, steps=0), tree, tuple(aval(x) for x in leaves)
+def _program_key(structure: RolloutStructure, fp, task, st):
+    """What a compiled replan period is kept under: the structure but its steps, and its
+    arguments' shapes (:func:`jaxplan.timing.arg_key`)."""
+    return dataclasses.replace(structure, steps=0), arg_key(fp, task, st)
 
 
 def compiled_step(fp: FleetParams, task: Task, st, structure: RolloutStructure):
     """(the compiled replan period of :func:`step_runner`, seconds spent compiling it):
-    compiled once per structure and shapes in this process and kept (the last
-    :data:`MAX_PROGRAMS`); a kept one costs 0 s."""
+    compiled once per structure and shapes in this process and kept (the last 8); a kept
+    one costs 0 s."""
     key = _program_key(structure, fp, task, st)
     compiled = _PROGRAMS.get(key)
     if compiled is not None:
-        _PROGRAMS.move_to_end(key)
         return compiled, 0.0
     compiled, compile_s = timed(lambda: step_runner(structure).lower(fp, task, st).compile())
-    _PROGRAMS[key] = compiled
-    while len(_PROGRAMS) > MAX_PROGRAMS:
-        _PROGRAMS.popitem(last=False)
-    return compiled, compile_s
+    return _PROGRAMS.put(key, compiled), compile_s
 
 
 def simulate(fp: FleetParams, task: Task, structure: RolloutStructure, progress=None):

@@ -37,7 +37,6 @@ import dataclasses
 import math
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -54,7 +53,7 @@ from jaxplan.rollout import RolloutStructure, Task, rollout_batch
 from jaxplan.scenarios import Scenario
 from jaxplan.solve import shard_lanes
 from jaxplan.sweep_csv import SweepError, make_key
-from jaxplan.timing import timed
+from jaxplan.timing import KeptPrograms, arg_key, timed
 from jaxplan.world import ALL_KINDS, PLANE, row_kinds, static_rows
 
 __all__ = [
@@ -410,8 +409,8 @@ class Tally:
 
 # this process's compiled batch programs, the most recently used last: a sweep (or a
 # shard, or a Ray worker's next task) of the same structure and shapes reuses one
-_PROGRAMS: OrderedDict = OrderedDict()
 MAX_PROGRAMS = 8
+_PROGRAMS = KeptPrograms(MAX_PROGRAMS)
 
 
 class BatchRunner:
@@ -445,12 +444,9 @@ class BatchRunner:
     def _compile(self, fpb, taskb, n_dim: int, batch: int, shape, structure):
         m_pad, _, n_wp, r_pad = shape
         sh = cpu_shards(batch)
-        leaves, tree = jax.tree.flatten((fpb, taskb))
-        pkey = (structure, sh, tree, tuple((np.shape(x), np.asarray(x).dtype.str)
-                                           for x in leaves))  # what jit keys a program on
+        pkey = (structure, sh, arg_key(fpb, taskb))  # what jit keys a program on
         compiled = _PROGRAMS.get(pkey)
         if compiled is not None:
-            _PROGRAMS.move_to_end(pkey)
             self.say("the planner for this shape is compiled already (in this process)")
             return compiled
         self.say(f"compiling the planner: batch of {batch} runs x {m_pad} robots "
@@ -464,10 +460,7 @@ class BatchRunner:
         hits = CompileCounter.get("cache_hits") - h0
         self.tally.cache_hits += hits
         self.say(f"compiled in {seconds:.1f} s" + (" (from the compilation cache)" if hits else ""))
-        _PROGRAMS[pkey] = compiled
-        while len(_PROGRAMS) > MAX_PROGRAMS:
-            _PROGRAMS.popitem(last=False)
-        return compiled
+        return _PROGRAMS.put(pkey, compiled)
 
     def rows(self, points, built: dict, m_pad: int, batch: int,
              on_compiled: Callable[[], None] | None = None, *, weights=None,
