@@ -46,7 +46,7 @@ import numpy as np
 import jaxplan  # noqa: F401  (float64)
 from jaxplan import planner as _planner
 from jaxplan import solve
-from jaxplan.nlp import Limits, NLPStructure
+from jaxplan.nlp import Limits, NLPStructure, kind_constants, merit_and_constraints
 from jaxplan.reference import solve_slsqp
 from jaxplan.testing import antipodal, fleet_params, index_params
 from jaxplan.world import static_rows
@@ -289,19 +289,15 @@ def _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps):
 
 @functools.partial(jax.jit, static_argnames=("structure", "shards", "evaluate"))
 def _merit_batch(P, x0, mult, mu, structure, shards, evaluate):
-    from jaxplan import nlp
-    from jaxplan.solve.devices import shard_lanes
-
     def one(p, x, m, u):
         if not evaluate:
             return jnp.sum(x)
         if m.static is None:  # as init_lane: no static rows' multipliers given, zeros
             m = m._replace(static=solve.zero_multipliers(p, structure).static)
-        f, g = nlp.merit_and_constraints(x, p, structure, nlp.kind_constants(p.rest, structure),
-                                         m, u)
+        f, g = merit_and_constraints(x, p, structure, kind_constants(p.rest, structure), m, u)
         return f + sum(jnp.sum(a) for a in jax.tree.leaves(g))
 
-    return shard_lanes(jax.vmap(one), (P, x0, mult, mu), shards)
+    return solve.shard_lanes(jax.vmap(one), (P, x0, mult, mu), shards)
 
 
 def _merit_ms(structure, P, x0, mult, mu, shards, reps) -> float:
