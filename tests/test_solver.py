@@ -385,15 +385,17 @@ def test_one_evaluation_steps_take_the_textbook_iterates(mode):
 
 
 def test_default_pool_follows_the_batch_and_its_others():
-    """The automatic pool (measured rule, solve.default_pool): 12 lanes on a CPU for a
-    large batch of NLPs with few others each, the whole batch of at most 3, 2 otherwise,
-    the whole batch elsewhere; never more lanes than the batch has."""
+    """The automatic pool (measured rule, solve.default_pool): on a CPU, for a large batch
+    12 lanes if its NLPs have few others each, else 4; the whole batch of at most 3, 2
+    otherwise; the whole batch elsewhere; never more lanes than the batch has."""
     L, F = solve.LOCKSTEP_MAX, solve.FEW_OTHERS
     assert solve.default_pool(640, "cpu", n_others=10) == solve.POOL_CPU_FEW == 12
     assert solve.default_pool(L + 1, "cpu", n_others=F) == 12
     assert solve.default_pool(L, "cpu", n_others=10) == solve.POOL_CPU == 2
-    assert solve.default_pool(640, "cpu", n_others=F + 1) == 2
-    assert solve.default_pool(640, "cpu") == 2
+    assert solve.default_pool(640, "cpu", n_others=F + 1) == solve.POOL_CPU_MANY == 4
+    assert solve.default_pool(L + 1, "cpu", n_others=99) == 4
+    assert solve.default_pool(L, "cpu", n_others=99) == 2
+    assert solve.default_pool(640, "cpu") == 4
     assert solve.default_pool(1, "cpu", n_others=1) == 1
     assert solve.default_pool(solve.SMALL_BATCH, "cpu", n_others=2) == solve.SMALL_BATCH == 3
     assert solve.default_pool(solve.SMALL_BATCH + 1, "cpu", n_others=3) == 2

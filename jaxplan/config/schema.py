@@ -155,8 +155,8 @@ class PlannerConfig:
     NLP: a free-end plan may then arrive at speed with a robot just beyond its goal).
     solver_pool (>= 0): how many robots' NLPs the solver steps at once in a replan
     (jaxplan.solve.solve_lanes); 0 = automatic (jaxplan.solve.default_pool): 2 on a
-    CPU (all M for at most 3 robots; 12 for more than 32 robots with at most 16 others
-    per NLP), all M elsewhere.
+    CPU (all M for at most 3 robots; for more than 32 robots 12 with at most 16 others
+    per NLP, else 4), all M elsewhere.
     Speed only: every NLP takes the same iterations whatever the pool (results equal to
     rounding, which a closed loop can amplify into slightly different runs).
     deadlock "auto" | "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,

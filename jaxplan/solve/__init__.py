@@ -21,6 +21,7 @@ from jaxplan.solve.pool import (
                                 LOCKSTEP_MAX,
                                 POOL_CPU,
                                 POOL_CPU_FEW,
+                                POOL_CPU_MANY,
                                 SMALL_BATCH,
                                 default_pool,
                                 pool_steps,
@@ -40,8 +41,8 @@ from jaxplan.solve.types import (
 
 __all__ = [
     "CONVERGED", "FEW_OTHERS", "INFEASIBLE", "LINE_SEARCH_FAILED", "LOCKSTEP_MAX", "MAX_ITERS",
-    "NON_FINITE",
-    "POOL_CPU", "POOL_CPU_FEW", "SMALL_BATCH", "STATUS_NAMES", "Solution", "SolverSettings",
+    "NON_FINITE", "POOL_CPU", "POOL_CPU_FEW", "POOL_CPU_MANY", "SMALL_BATCH", "STATUS_NAMES",
+    "Solution", "SolverSettings",
     "as_strong_dtypes", "default_pool", "default_shards", "direction", "directions",
     "eigh_chunk", "initial_guess", "initial_guess_batch", "pool_steps", "shard_lanes", "solve",
     "solve_batch", "solve_differentiable", "solve_lanes", "swerve_guess", "warm_start",

@@ -147,15 +147,17 @@ def pool_steps(evaluations, pool: int) -> tuple[int, int]:
 LOCKSTEP_MAX = 32  # batches up to this size start in lockstep (_pooled)
 POOL_CPU = 2  # lanes per step on a CPU (measured on 2 cores: see default_pool)
 POOL_CPU_FEW = 12  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
+POOL_CPU_MANY = 4  # ... in a batch of more than LOCKSTEP_MAX NLPs with more others each
 FEW_OTHERS = 16  # "few": at most this many other robots per NLP
 SMALL_BATCH = 3  # a CPU batch of at most this many lanes steps them all at once (one step)
 
 
 def default_pool(batch: int, backend: str | None = None, n_others: int | None = None) -> int:
     """The pool size :func:`jaxplan.solve.batch.solve_batch` and the planner use: on a CPU,
-    POOL_CPU_FEW (12) lanes for a batch of more than LOCKSTEP_MAX NLPs with at most FEW_OTHERS other
-    robots each (``n_others``: the other-robot slots of an NLP, masked ones included),
-    the whole batch for at most SMALL_BATCH (3) NLPs, else POOL_CPU (2); B elsewhere.
+    for a batch of more than LOCKSTEP_MAX NLPs POOL_CPU_FEW (12) lanes if they have at most
+    FEW_OTHERS other robots each (``n_others``: the other-robot slots of an NLP, masked
+    ones included), else POOL_CPU_MANY (4); the whole batch for at most SMALL_BATCH (3)
+    NLPs, else POOL_CPU (2); B elsewhere.
 
     A pool smaller than the batch puts two copies of the solver step in the program (the
     lockstep one and the slots'); a batch of 3 gains little from the slots, and one copy
@@ -171,7 +173,12 @@ def default_pool(batch: int, backend: str | None = None, n_others: int | None = 
     32 / 48); 100 robots with 16 neighbours 118 / 107 / 112 ms cold with 4 / 8 / 12 (warm
     24 / 24 / 24), in another run 163 / 106 / 97 / 121 / 133 ms cold with 2 / 4 / 8 / 16
     / 32; with all 99 others 310 / 332 / 457 / 619 ms cold with 2 / 8 / 16 / 32 (warm 58
-    / 72 / 81 / 166).  A step costs a fixed
+    / 72 / 81 / 166).  With all 99 others again (AMD EPYC, two warm replans, 50 lanes
+    per device, medians of 8 x 5 interleaved in one process): 59.1 / 49.4 / 53.2 / 53.8 ms
+    with pools 2 / 4 / 6 / 8, in another run 80.5 / 70.5 / 66.9 ms with 2 / 3 / 4: 4 is
+    the best of these, and each lane's results were bitwise those of pool 2 there (not
+    in the planner's closed loop, whose rounding differed from the first replan of a
+    40-robot fleet).  A step costs a fixed
     part (XLA's per-kernel overheads) plus a part per lane: wide pools share the fixed
     part, but once the per-lane arrays grow (many others) caches lose.  Warm 10-robot
     replans: 2.2-2.5 ms for pools 2-10 (they start in lockstep, :func:`_pooled`)."""
@@ -180,5 +187,7 @@ def default_pool(batch: int, backend: str | None = None, n_others: int | None = 
         return batch
     if batch <= SMALL_BATCH:
         return max(1, batch)
-    few = n_others is not None and n_others <= FEW_OTHERS and batch > LOCKSTEP_MAX
-    return max(1, min(batch, POOL_CPU_FEW if few else POOL_CPU))
+    if batch > LOCKSTEP_MAX:
+        few = n_others is not None and n_others <= FEW_OTHERS
+        return POOL_CPU_FEW if few else POOL_CPU_MANY
+    return max(1, min(batch, POOL_CPU))
