@@ -201,14 +201,16 @@ def _product_table(r: dict) -> tuple[list[str], dict[str, str]]:
 def _split_why(t: dict) -> str:
     """Where a replan's time goes, from benchmarks.solver._time_split's accounting."""
     parts = []
+    alone = "step_timed_alone" in t  # steps shared as timed alone (older files: derived)
+    without = " without the others' terms" if alone else " without the others"
     if t["lockstep_steps"]:
         parts.append(f"{t['lockstep_steps']:g} steps of all {t['lanes_per_device']} lanes at "
                      f"{t['step_us_all_lanes']:.0f} us "
-                     f"({t['step_us_all_lanes_without_others']:.0f} us without the others)")
+                     f"({t['step_us_all_lanes_without_others']:.0f} us{without})")
     if t["slot_steps"]:
         parts.append(f"{t['slot_steps']:g} steps of {t['pool']} slots at "
                      f"{t['step_us_pool']:.0f} us "
-                     f"({t['step_us_pool_without_others']:.0f} us without the others)")
+                     f"({t['step_us_pool_without_others']:.0f} us{without})")
     fixed = f"{_ms(t['fixed_ms'])} for the call's set-up and report"
     if "merit_ms" in t:  # the call allowed no iteration, less its evaluation of L_A per lane
         fixed += (f" (the call allowed no iteration, {_ms(t['no_iteration_ms'])}, less the "
@@ -217,6 +219,12 @@ def _split_why(t: dict) -> str:
     else:
         fixed = (f"{_ms(t['fixed_ms'])} for the call without iterations (set-up, one "
                  "evaluation of L_A per lane, the report)")
+    if alone:
+        a = t["step_timed_alone"]
+        fixed += (f"; the steps share the rest of the measured {_ms(t['measured_ms'])} as "
+                  f"they cost timed alone (medians of {a['rounds']} interleaved calls of "
+                  f"{a['steps_per_call']} steps, with and without the others' terms; "
+                  f"x{a['scale']:.2f} of those timings)")
     parts.append(fixed)
     where = "the busier device: " if t["shards"] > 1 else ""
     return (f"{t['evaluations_per_replan']:.0f} evaluations per replan (per lane median "

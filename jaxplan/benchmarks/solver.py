@@ -312,54 +312,87 @@ def _merit_ms(structure, P, x0, mult, mu, shards, reps) -> float:
     return max(ms[0] - ms[1], 0.0)
 
 
+STEP_RUN = 8  # _step_us: steps per timed call
+STEP_ROUNDS = 15  # _step_us: interleaved rounds (each times every program once)
+
+
+@functools.partial(jax.jit, static_argnames=("structure",))
+def _run_steps(st, lane, settings, structure):
+    step = lambda _, st: solve.alsqp.step_lanes(st, lane, structure, settings)
+    return jax.lax.fori_loop(0, STEP_RUN, step, st)
+
+
+def _step_us(structure, settings, problems: dict, rounds: int = STEP_ROUNDS) -> dict:
+    """Median us of one solver step (solve.alsqp.step_lanes) for each of ``problems``
+    (name -> (P, x0, mult, mu), lanes on the leading axis, one device): the lanes set up
+    as solve_batch sets them up, then STEP_RUN steps per timed call (from the first: a
+    warm start's base evaluation, its directions, then trials), the calls of all the
+    problems interleaved over ``rounds`` rounds, so that a drift of the machine's speed
+    reaches them alike.  A step costs about the same whatever its lanes do (active or
+    finished), so this is the cost of a step of that many lanes."""
+    init = jax.vmap(lambda p, x, m, u: solve.alsqp.init_lane(p, x, structure, settings, m, u,
+                                                              x)[:2])
+    runs = {}
+    for name, (P, x0, mult, mu) in problems.items():
+        lane, st = jax.jit(init)(*solve.as_strong_dtypes((P, x0, mult, mu)))
+        jax.block_until_ready(_run_steps(st, lane, settings, structure))  # compile
+        runs[name] = (st, lane)
+    ts = {name: [] for name in runs}
+    for _ in range(rounds):
+        for name, (st, lane) in runs.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(_run_steps(st, lane, settings, structure))
+            ts[name].append(time.perf_counter() - t0)
+    return {name: 1e6 * statistics.median(t) / STEP_RUN for name, t in ts.items()}
+
+
 def _time_split(structure, settings, cases, reps: int = 5) -> dict:
     """Where a fleet replan's time goes, accounted on the first of the warm ``cases`` of
     :func:`_fleet_cases` (solve_batch's default pool and devices): its time = the call's
-    fixed part (:func:`_accounted`) + its steps x the mean cost of a step.
-    The steps are those of the busiest device, replayed from each lane's evaluations
-    (Solution.evaluations, solve.pool_steps): steps holding every lane of the device
-    (lockstep) and steps of ``pool`` slots.  A lockstep step's cost comes from the same
-    lanes solved in lockstep alone (pool = the lanes), a slot step's from the rest of the
-    time; and the same accounting on the NLPs without the other robots (their slots cut:
-    other iterations, their own steps; the same pool) gives a step's cost without their
-    terms."""
+    fixed part (:func:`_accounted`) + its steps x the cost of a step, against the time
+    measured.  The steps are those of the busiest device, replayed from each lane's
+    evaluations (Solution.evaluations, solve.pool_steps): steps holding every lane of
+    the device (lockstep) and steps of ``pool`` slots.  The measured time less the fixed
+    part is shared between the steps as they cost timed alone (:func:`_step_us`, on the
+    first device's lanes: a step of each kind with the other robots' terms and without
+    them, the same NLPs with their slots cut, interleaved), the alone timings scaled by
+    one factor (``step_timed_alone``: the timings, the factor): a step in the solve's
+    loop and one timed alone differ (the factor was 0.66-1.04 in four runs of the 10- and
+    100-robot fleets on the 2-core machine), the shares of its parts less."""
     c = cases[0]
     P, x0, mult, mu = c["P"], c["x0"], c["mult"], c["mu"]
     B = int(np.size(c["sol"].status))
     shards = solve.default_shards(B)
     per = -(-B // shards)
     n_others = P.other_mask.shape[-1]
-
-    def steps_of(sol, pool):
-        ev = np.asarray(sol.evaluations)
-        return max((solve.pool_steps(ev[d::shards], pool) for d in range(shards)), key=sum)
-
-    def account(P, mult, pool):
-        sol, ms, ms0, ms_none, ms_eval = _accounted(structure, settings, P, x0, mult, mu, pool,
-                                                    shards, reps)
-        lock, slots = steps_of(sol, pool)
-        c_all = 0.0
-        if lock:  # the lockstep steps' cost: the lanes solved in lockstep alone
-            sol_l, ms_l, ms0_l, _, _ = _accounted(structure, settings, P, x0, mult, mu, per,
-                                                  shards, reps)
-            c_all = max(ms_l - ms0_l, 0.0) / max(1, steps_of(sol_l, per)[0])
-        c_slot = max(ms - ms0 - lock * c_all, 0.0) / max(1, slots)
-        return sol, ms, ms0, lock, slots, c_all, c_slot, ms_none, ms_eval
-
     pool = solve.default_pool(per, n_others=n_others)
-    sol, ms, ms0, lock, slots, c_all, c_slot, ms_none, ms_eval = account(P, mult, pool)
+    sol, ms, ms0, ms_none, ms_eval = _accounted(structure, settings, P, x0, mult, mu, pool,
+                                                shards, reps)
+    ev = np.asarray(sol.evaluations)
+    lock, slots = max((solve.pool_steps(ev[d::shards], pool) for d in range(shards)), key=sum)
     bare = P._replace(others=jax.tree.map(lambda a: a[:, :0], P.others),
                       other_mask=P.other_mask[:, :0], other_radius=P.other_radius[:, :0])
-    bare_acc = account(bare, mult._replace(collision=mult.collision[..., :0]), pool)
-    ev = np.asarray(sol.evaluations)
+    bare_mult = mult._replace(collision=mult.collision[..., :0])
+    first = lambda t, n: jax.tree.map(lambda a: a[::shards][:n], t)  # device 0's lanes
+    widths = {"pool": pool} | ({"all_lanes": per} if lock else {})
+    us = _step_us(structure, settings, {
+        (w, o): first((PP, x0, mm, mu), n) for w, n in widths.items()
+        for o, PP, mm in (("with", P, mult), ("without", bare, bare_mult))})
+    # the steps' share of the measured time, split as the steps timed alone cost
+    alone = 1e-3 * (lock * us.get(("all_lanes", "with"), 0.0) + slots * us[("pool", "with")])
+    scale = max(ms - ms0, 0.0) / alone if alone > 0 else 0.0
+    get = lambda w, o: scale * us.get((w, o), 0.0)
     return dict(lanes_per_device=per, pool=pool, shards=shards, others_per_nlp=n_others,
                 evaluations_per_replan=int(ev.sum()),
                 evaluations_lane_median=float(np.median(ev)),
                 evaluations_lane_max=int(ev.max()), lockstep_steps=lock, slot_steps=slots,
                 fixed_ms=ms0, no_iteration_ms=ms_none, merit_ms=ms_eval,
-                step_us_all_lanes=1e3 * c_all, step_us_pool=1e3 * c_slot,
-                step_us_pool_without_others=1e3 * bare_acc[6],
-                step_us_all_lanes_without_others=1e3 * bare_acc[5], measured_ms=ms)
+                step_us_all_lanes=get("all_lanes", "with"), step_us_pool=get("pool", "with"),
+                step_us_pool_without_others=get("pool", "without"),
+                step_us_all_lanes_without_others=get("all_lanes", "without"),
+                step_timed_alone=dict(steps_per_call=STEP_RUN, rounds=STEP_ROUNDS, scale=scale,
+                                      us={f"{w} {o}": v for (w, o), v in us.items()}),
+                measured_ms=ms)
 
 
 def _cpu_s() -> float:
