@@ -357,7 +357,7 @@ def _time_split(structure, settings, cases, reps: int = 5) -> dict:
     first device's lanes: a step of each kind with the other robots' terms and without
     them, the same NLPs with their slots cut, interleaved), the alone timings scaled by
     one factor (``step_timed_alone``: the timings, the factor): a step in the solve's
-    loop and one timed alone differ (the factor was 0.66-1.04 in four runs of the 10- and
+    loop and one timed alone differ (the factor was 0.66-1.60 in six runs of the 10- and
     100-robot fleets on the 2-core machine), the shares of its parts less."""
     c = cases[0]
     P, x0, mult, mu = c["P"], c["x0"], c["mult"], c["mu"]
