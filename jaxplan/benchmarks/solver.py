@@ -322,14 +322,15 @@ def _run_steps(st, lane, settings, structure):
     return jax.lax.fori_loop(0, STEP_RUN, step, st)
 
 
-def _step_us(structure, settings, problems: dict, rounds: int = STEP_ROUNDS) -> dict:
-    """Median us of one solver step (solve.alsqp.step_lanes) for each of ``problems``
-    (name -> (P, x0, mult, mu), lanes on the leading axis, one device): the lanes set up
-    as solve_batch sets them up, then STEP_RUN steps per timed call (from the first: a
-    warm start's base evaluation, its directions, then trials), the calls of all the
-    problems interleaved over ``rounds`` rounds, so that a drift of the machine's speed
-    reaches them alike.  A step costs about the same whatever its lanes do (active or
-    finished), so this is the cost of a step of that many lanes."""
+def _step_us(structure, settings, problems: dict, whole, rounds: int = STEP_ROUNDS):
+    """(median us of one solver step (solve.alsqp.step_lanes) for each of ``problems``,
+    median ms of ``whole()``): problems name -> (P, x0, mult, mu), lanes on the leading
+    axis, one device; the lanes set up as solve_batch sets them up, then STEP_RUN steps
+    per timed call (from the first: a warm start's base evaluation, its directions, then
+    trials); the calls of all the problems and of ``whole`` (the solve they come from)
+    interleaved over ``rounds`` rounds, so that a drift of the machine's speed reaches
+    them alike.  A step costs about the same whatever its lanes do (active or finished),
+    so this is the cost of a step of that many lanes."""
     init = jax.vmap(lambda p, x, m, u: solve.alsqp.init_lane(p, x, structure, settings, m, u,
                                                               x)[:2])
     runs = {}
@@ -337,13 +338,19 @@ def _step_us(structure, settings, problems: dict, rounds: int = STEP_ROUNDS) -> 
         lane, st = jax.jit(init)(*solve.as_strong_dtypes((P, x0, mult, mu)))
         jax.block_until_ready(_run_steps(st, lane, settings, structure))  # compile
         runs[name] = (st, lane)
+    jax.block_until_ready(whole())
     ts = {name: [] for name in runs}
+    tw = []
     for _ in range(rounds):
         for name, (st, lane) in runs.items():
             t0 = time.perf_counter()
             jax.block_until_ready(_run_steps(st, lane, settings, structure))
             ts[name].append(time.perf_counter() - t0)
-    return {name: 1e6 * statistics.median(t) / STEP_RUN for name, t in ts.items()}
+        t0 = time.perf_counter()
+        jax.block_until_ready(whole())
+        tw.append(time.perf_counter() - t0)
+    return ({name: 1e6 * statistics.median(t) / STEP_RUN for name, t in ts.items()},
+            1e3 * statistics.median(tw))
 
 
 def _time_split(structure, settings, cases, reps: int = 5) -> dict:
@@ -355,10 +362,10 @@ def _time_split(structure, settings, cases, reps: int = 5) -> dict:
     the device (lockstep) and steps of ``pool`` slots.  The measured time less the fixed
     part is shared between the steps as they cost timed alone (:func:`_step_us`, on the
     first device's lanes: a step of each kind with the other robots' terms and without
-    them, the same NLPs with their slots cut, interleaved), the alone timings scaled by
-    one factor (``step_timed_alone``: the timings, the factor): a step in the solve's
-    loop and one timed alone differ (the factor was 0.66-1.60 in six runs of the 10- and
-    100-robot fleets on the 2-core machine), the shares of its parts less."""
+    them, the same NLPs with their slots cut, interleaved with the solve itself, whose
+    median there is ``measured_ms``), the alone timings scaled by one factor
+    (``step_timed_alone``: the timings, the factor): a step in the solve's loop and one
+    timed alone differ, the shares of its parts less."""
     c = cases[0]
     P, x0, mult, mu = c["P"], c["x0"], c["mult"], c["mu"]
     B = int(np.size(c["sol"].status))
@@ -375,12 +382,15 @@ def _time_split(structure, settings, cases, reps: int = 5) -> dict:
     bare_mult = mult._replace(collision=mult.collision[..., :0])
     first = lambda t, n: jax.tree.map(lambda a: a[::shards][:n], t)  # device 0's lanes
     widths = {"pool": pool} | ({"all_lanes": per} if lock else {})
-    us = _step_us(structure, settings, {
+    us, ms_i = _step_us(structure, settings, {
         (w, o): first((PP, x0, mm, mu), n) for w, n in widths.items()
-        for o, PP, mm in (("with", P, mult), ("without", bare, bare_mult))})
-    # the steps' share of the measured time, split as the steps timed alone cost
+        for o, PP, mm in (("with", P, mult), ("without", bare, bare_mult))},
+        lambda: solve.solve_batch(P, x0, structure, settings, mult, mu, pool=pool,
+                                  shards=shards))
+    # the steps' share of the measured time (the solve timed among the steps), split as
+    # the steps timed alone cost
     alone = 1e-3 * (lock * us.get(("all_lanes", "with"), 0.0) + slots * us[("pool", "with")])
-    scale = max(ms - ms0, 0.0) / alone if alone > 0 else 0.0
+    scale = max(ms_i - ms0, 0.0) / alone if alone > 0 else 0.0
     get = lambda w, o: scale * us.get((w, o), 0.0)
     return dict(lanes_per_device=per, pool=pool, shards=shards, others_per_nlp=n_others,
                 evaluations_per_replan=int(ev.sum()),
@@ -392,7 +402,7 @@ def _time_split(structure, settings, cases, reps: int = 5) -> dict:
                 step_us_all_lanes_without_others=get("all_lanes", "without"),
                 step_timed_alone=dict(steps_per_call=STEP_RUN, rounds=STEP_ROUNDS, scale=scale,
                                       us={f"{w} {o}": v for (w, o), v in us.items()}),
-                measured_ms=ms)
+                measured_ms=ms_i, measured_alone_ms=ms)
 
 
 def _cpu_s() -> float:
