@@ -120,9 +120,13 @@ def test_the_product_table_states_each_target_and_why_it_is_missed():
         "none": {"n_static": 6, "static_rows": 6, "warm_ms": 5.0, "warm_conv": 0.9,
                  "warm_iters_sum": [25, 25]}}
     paper = _kind(2.0, 300.0, 44.0, -1e-12, 7)
-    page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
-                    machine="m", commit="c", date="d")
-    rows = {ln.split(" | ")[0]: ln for ln in page.splitlines() if ln.startswith("| ")}
+
+    def rendered():  # the page and its rows by their first cell
+        page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
+                        machine="m", commit="c", date="d")
+        return page, {ln.split(" | ")[0]: ln for ln in page.splitlines() if ln.startswith("| ")}
+
+    page, rows = rendered()
     warm = rows["| JAX, 10-robot replan, warm (median of the replans' medians)"]
     assert "6.40 ms" in warm and "2.00 ms" in warm
     assert ("<= 5 ms: **not met**: 6.40 ms on one core: 40 lane-iterations per replan at 160 us "
@@ -151,9 +155,7 @@ def test_the_product_table_states_each_target_and_why_it_is_missed():
         fixed_ms=12.87, step_us_all_lanes=0.0, step_us_pool=654.6,
         step_us_pool_without_others=200.6, step_us_all_lanes_without_others=0.0,
         measured_ms=65.9)
-    page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
-                    machine="m", commit="c", date="d")
-    rows = {ln.split(" | ")[0]: ln for ln in page.splitlines() if ln.startswith("| ")}
+    page, rows = rendered()
     assert ("<= 5 ms: **not met**: 6.40 ms on one core: 82 evaluations per replan (per lane "
             "median 8, max 10); 8 steps of all 10 lanes at 776 us (580 us without the others), "
             "3 steps of 2 slots at 433 us (333 us without the others), 1.27 ms for the call's "
@@ -172,9 +174,7 @@ def test_the_product_table_states_each_target_and_why_it_is_missed():
         step_us_all_lanes=570.0, step_us_all_lanes_without_others=319.0, step_us_pool=289.0,
         step_us_pool_without_others=195.0,
         step_timed_alone=dict(steps_per_call=8, rounds=15, scale=0.83, us={}))
-    page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
-                    machine="m", commit="c", date="d")
-    rows = {ln.split(" | ")[0]: ln for ln in page.splitlines() if ln.startswith("| ")}
+    page, rows = rendered()
     assert ("82 evaluations per replan (per lane median 8, max 10); 8 steps of all 10 lanes "
             "at 570 us (319 us without the others' terms), 3 steps of 2 slots at 289 us (195 "
             "us without the others' terms), 1.27 ms for the call's set-up and report (the call "
@@ -191,8 +191,7 @@ def test_the_product_table_states_each_target_and_why_it_is_missed():
     assert ("<= 1.5x: **not met**: 1.80x: lane-iterations per replan 32 vs 25, 281 vs 200 us "
             "each (8 of 26 static rows per NLP vs 6 of 6)") in obs
     prod["obstacles20"]["warm_ratio"] = 1.4
-    page = markdown({"solver": {**SOLVER, "product": prod, "paper": paper}},
-                    machine="m", commit="c", date="d")
+    page, _ = rendered()
     assert "<= 1.5x: met |" in page
     # README's block: a header line naming machine, commit and date, then rows of the page
     block = readme_lines({"solver": {**SOLVER, "product": prod, "paper": paper}},
