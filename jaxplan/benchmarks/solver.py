@@ -331,11 +331,11 @@ def _step_us(structure, settings, problems: dict, whole, rounds: int = STEP_ROUN
     interleaved over ``rounds`` rounds, so that a drift of the machine's speed reaches
     them alike.  A step costs about the same whatever its lanes do (active or finished),
     so this is the cost of a step of that many lanes."""
-    init = jax.vmap(lambda p, x, m, u: solve.alsqp.init_lane(p, x, structure, settings, m, u,
-                                                              x)[:2])
+    init = jax.jit(jax.vmap(lambda p, x, m, u: solve.alsqp.init_lane(
+        p, x, structure, settings, m, u, x)[:2]))
     runs = {}
     for name, (P, x0, mult, mu) in problems.items():
-        lane, st = jax.jit(init)(*solve.as_strong_dtypes((P, x0, mult, mu)))
+        lane, st = init(*solve.as_strong_dtypes((P, x0, mult, mu)))
         jax.block_until_ready(_run_steps(st, lane, settings, structure))  # compile
         runs[name] = (st, lane)
     jax.block_until_ready(whole())
