@@ -263,7 +263,7 @@ _tb_direction = jax.jit(solve.direction)
 _guess = jax.jit(solve.initial_guess, static_argnums=1)  # eagerly: op by op, slower
 
 
-def test_directions_by_cholesky_where_it_settles_them_else_eigh():
+def test_directions_by_cholesky_where_it_settles_them_else_eigh(monkeypatch):
     """solve.directions gives what _direction (eigh, eigenvalues floored at reg x the
     largest) gives, for positive definite, nearly singular, indefinite and non-finite
     Hessians alike; Cholesky is used only where no eigenvalue would be floored (checked
@@ -310,6 +310,22 @@ def test_directions_by_cholesky_where_it_settles_them_else_eigh():
             assert np.linalg.norm(d[i] - ref[i]) <= 1e-4 * np.linalg.norm(ref[i])  # (cond 1e11)
         else:  # eigh's own step
             np.testing.assert_allclose(d[i], ref[i], rtol=1e-12, atol=0)
+    # the lanes eigh takes are decomposed one by one (solve.linalg.EIGH_CHUNK): in calls of
+    # two or three the directions are bitwise the same (so the choice is speed alone)
+    for chunk in (2, 3):
+        monkeypatch.setattr(solve.linalg, "EIGH_CHUNK", chunk)
+        d_c = np.asarray(jax.jit(lambda *a: solve.directions(*a))(H, g, need, reg))
+        np.testing.assert_array_equal(d_c, d)
+    # under an outer vmap (a sweep's runs) they are formed in chunks of
+    # EIGH_CHUNK_VMAPPED lanes, the program the sweeps' rows come from
+    runs = lambda a: jnp.stack([a, a[::-1]])
+    dv = jax.jit(jax.vmap(solve.directions, in_axes=(0, 0, 0, None)))(
+        runs(H), runs(g), runs(need), reg)
+    ref_v = jax.jit(jax.vmap(lambda *a: solve.linalg._directions(
+        *a, solve.linalg.EIGH_CHUNK_VMAPPED), in_axes=(0, 0, 0, None)))(
+        runs(H), runs(g), runs(need), reg)
+    np.testing.assert_array_equal(np.asarray(dv), np.asarray(ref_v))
+    np.testing.assert_allclose(np.asarray(dv[0]), d, rtol=1e-12, atol=1e-300)
     # non-finite lanes never reach it (the step sanitizes H), but it stays finite
     Hb = H.at[0].set(jnp.nan)
     assert np.all(np.isfinite(np.asarray(solve.directions(Hb, g, need.at[0].set(False), reg))))
