@@ -310,19 +310,19 @@ def test_directions_by_cholesky_where_it_settles_them_else_eigh(monkeypatch):
             assert np.linalg.norm(d[i] - ref[i]) <= 1e-4 * np.linalg.norm(ref[i])  # (cond 1e11)
         else:  # eigh's own step
             np.testing.assert_allclose(d[i], ref[i], rtol=1e-12, atol=0)
-    # the lanes eigh takes are decomposed one by one (solve.linalg.EIGH_CHUNK): in calls of
-    # two or three the directions are bitwise the same (so the choice is speed alone)
+    # on a CPU the lanes eigh takes are decomposed one by one (EIGH_CHUNK_CPU): in calls
+    # of two or three the directions are bitwise the same (so the choice is speed alone)
     for chunk in (2, 3):
-        monkeypatch.setattr(solve.linalg, "EIGH_CHUNK", chunk)
+        monkeypatch.setattr(solve.linalg, "EIGH_CHUNK_CPU", chunk)
         d_c = np.asarray(jax.jit(lambda *a: solve.directions(*a))(H, g, need, reg))
         np.testing.assert_array_equal(d_c, d)
-    # under an outer vmap (a sweep's runs) they are formed in chunks of
-    # EIGH_CHUNK_VMAPPED lanes, the program the sweeps' rows come from
+    # under an outer vmap (a sweep's runs) they are formed in chunks of EIGH_CHUNK
+    # lanes, the program the sweeps' rows come from
     runs = lambda a: jnp.stack([a, a[::-1]])
     dv = jax.jit(jax.vmap(solve.directions, in_axes=(0, 0, 0, None)))(
         runs(H), runs(g), runs(need), reg)
     ref_v = jax.jit(jax.vmap(lambda *a: solve.linalg._directions(
-        *a, solve.linalg.EIGH_CHUNK_VMAPPED), in_axes=(0, 0, 0, None)))(
+        *a, solve.linalg.EIGH_CHUNK), in_axes=(0, 0, 0, None)))(
         runs(H), runs(g), runs(need), reg)
     np.testing.assert_array_equal(np.asarray(dv), np.asarray(ref_v))
     np.testing.assert_allclose(np.asarray(dv[0]), d, rtol=1e-12, atol=1e-300)

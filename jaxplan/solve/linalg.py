@@ -125,16 +125,16 @@ def newton_cholesky(H, grad, reg):
         jnp.isfinite(d))
 
 
-# directions: matrices per eigh call where Cholesky does not settle it.  One: a step
-# seldom has more than one such lane, and a call of two then decomposed a copy as well
-# (the same directions; the bench's warm 10-robot product replans took 0.87-0.96x the
-# time with 1 instead of 2, the cold one 0.93x, a warm 100-robot one 0.93x, the paper's
-# 64 x 10 cold batch 0.92x).  Under an outer vmap (a sweep's batch of runs) the
-# directions are formed as with 2, the chunk they were formed with before, because there
-# a chunk of 1 rounds differently (its batched products are other XLA programs) and the
-# sweeps' rows, the studies' included, would move (:func:`directions`).
-EIGH_CHUNK = 1
-EIGH_CHUNK_VMAPPED = 2
+# directions: matrices per eigh call where Cholesky does not settle it.  On a CPU one
+# (EIGH_CHUNK_CPU): a step seldom has more than one such lane, and a call of two then
+# decomposed a copy as well (the same directions; the bench's warm 10-robot product
+# replans took 0.87-0.96x the time with 1 instead of 2, the cold one 0.93x, a warm
+# 100-robot one 0.93x, the paper's 64 x 10 cold batch 0.92x).  Two (EIGH_CHUNK) under an
+# outer vmap (a sweep's batch of runs), where a chunk of 1 rounds differently (its
+# batched products are other XLA programs) and the sweeps' rows, the studies' included,
+# would move; and off the CPU, where it was not measured.
+EIGH_CHUNK_CPU = 1
+EIGH_CHUNK = 2
 
 
 def _directions(H, grad, need, reg, chunk: int):
@@ -166,17 +166,19 @@ def directions(H, grad, need, reg):
     floored and the direction is -H^-1 grad: solved by Cholesky.  That bound is checked
     without eigenvalues: lambda_max <= |H|_F and lambda_min >= 1 / |L^-1|_F^2.  The
     other lanes (indefinite or nearly singular Hessians: about half of the iterations of
-    a cold fleet solve) get :func:`direction`, EIGH_CHUNK lanes per call (under an outer
-    vmap EIGH_CHUNK_VMAPPED), in a loop that runs as many times as they need, so a batch
-    pays an eigendecomposition only for them (on a CPU it costs ~40x the Cholesky).
-    LAPACK decomposes each matrix alone; the products around it are XLA's, and under an
-    outer vmap they round differently with another chunk."""
-    return _directions(H, grad, need, reg, EIGH_CHUNK)
+    a cold fleet solve) get :func:`direction`, EIGH_CHUNK_CPU lanes per call on a CPU
+    (EIGH_CHUNK elsewhere and under an outer vmap), in a loop that runs as many times as
+    they need, so a batch pays an eigendecomposition only for them (on a CPU it costs
+    ~40x the Cholesky).  LAPACK decomposes each matrix alone; the products around it are
+    XLA's, and under an outer vmap they round differently with another chunk."""
+    return jax.lax.platform_dependent(
+        H, grad, need, reg, cpu=lambda *a: _directions(*a, EIGH_CHUNK_CPU),
+        default=lambda *a: _directions(*a, EIGH_CHUNK))
 
 
 @directions.def_vmap
 def _directions_vmap(axis_size, in_batched, H, grad, need, reg):
     axes = [0 if b else None for b in in_batched]
-    out = jax.vmap(lambda *a: _directions(*a, EIGH_CHUNK_VMAPPED), in_axes=axes,
+    out = jax.vmap(lambda *a: _directions(*a, EIGH_CHUNK), in_axes=axes,
                    axis_size=axis_size)(H, grad, need, reg)
     return out, True
