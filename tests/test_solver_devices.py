@@ -78,6 +78,36 @@ def test_batch_split_over_cpu_devices_gives_the_one_device_results(tmp_path):
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-3000:]
 
 
+def test_packed_arguments_come_back_exactly():
+    """solve_batch hands a program split over devices its arguments as a few host
+    arrays (solve.batch.pack_leaves; the small leaves packed end to end per dtype, the
+    large ones as they are): unpacked, inside a jitted program as outside, every leaf
+    comes back with its shape, dtype and bits (NaN, -0.0, the extremes of int32 and
+    int64 values float64 cannot hold included), and None stays None."""
+    from jaxplan.solve.batch import PACK_ALONE_BYTES, pack_leaves, unpack_leaves
+
+    rng = np.random.default_rng(3)
+    odd = np.array([np.nan, -0.0, np.inf, -np.inf, 5e-324, 1.7976931348623157e308])
+    tree = dict(a=rng.normal(size=(4, 3)), odd=odd,
+                n=jnp.asarray([-2**31, 2**31 - 1, 0], jnp.int32),
+                k=np.array([-2**62, 2**53 + 1], np.int64),
+                b=np.array([True, False, True]), s=np.float64(0.25), i=np.int32(7),
+                empty=np.zeros((4, 2, 0)), none=None,
+                big=rng.normal(size=(PACK_ALONE_BYTES // 8 + 5,)),
+                big_b=np.ones((PACK_ALONE_BYTES + 1,), bool), nested=(jnp.arange(5.0), None))
+    arrays, layout = pack_leaves(tree)
+    assert len(arrays) == 4 + 2  # f64, i64, i32, bool packed; the two large leaves alone
+    assert all(isinstance(a, np.ndarray) for a in arrays)
+    hash(layout)  # a static argument of the jitted program
+    for back in (unpack_leaves(arrays, layout),
+                 jax.jit(unpack_leaves, static_argnums=1)(arrays, layout)):
+        assert jax.tree.structure(back) == jax.tree.structure(tree)
+        for x, y in zip(jax.tree.leaves(tree), jax.tree.leaves(back), strict=True):
+            x, y = np.asarray(x), np.asarray(y)
+            assert x.shape == y.shape and x.dtype == y.dtype
+            assert x.tobytes() == y.tobytes()
+
+
 def test_cpu_device_count_from_the_environment(monkeypatch):
     """JAXPLAN_CPU_DEVICES sets the CPU device count jaxplan asks JAX for; a bad value
     fails with a message that names the variable."""

@@ -17,6 +17,8 @@ from jaxplan.solve.guess import initial_guess
 from jaxplan.solve.pool import default_pool, solve_lanes
 from jaxplan.solve.types import Solution, SolverSettings
 
+PACK_ALONE_BYTES = 1 << 16  # pack_leaves: leaves this large go as they are
+
 
 @functools.partial(jax.jit, static_argnames=("structure", "pool", "shards"))
 def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool, shards=1,
@@ -56,7 +58,10 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
     problems per shard and of the other robots per problem).  Each problem takes the
     same iterations whatever the pool and shards; with shards the compiled code differs,
     so results can differ by rounding.  A problem whose x0 is not finite starts from
-    :func:`initial_guess` (formed by a separate call, only then)."""
+    :func:`initial_guess` (formed by a separate call, only then).  A program split over
+    devices takes its arguments as host arrays, the small ones packed per dtype
+    (:func:`pack_leaves`: placing ~50 arrays one by one on every device cost more than
+    the copy)."""
     lead = jnp.shape(params.radius)
     if x0 is not None and tuple(jnp.shape(x0)[:-1]) != tuple(lead):
         raise ValueError(f"x0 has leading axes {tuple(jnp.shape(x0)[:-1])}, params {tuple(lead)}")
@@ -79,10 +84,60 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
         x_fallback = initial_guess_batch(
             jax.tree.map(lambda a: a.reshape((-1,) + a.shape[x0.ndim - 1:]), params),
             structure).reshape(x0.shape)
-    return _solve_batch_jit(params, x0, structure, as_strong_dtypes(settings),
-                            None if multipliers is None else as_strong_dtypes(multipliers),
-                            None if penalty is None else as_strong_dtypes(penalty), pool, shards,
-                            x_fallback)
+    args = (params, x0, as_strong_dtypes(settings),
+            None if multipliers is None else as_strong_dtypes(multipliers),
+            None if penalty is None else as_strong_dtypes(penalty), x_fallback)
+    if shards > 1 and not any(isinstance(v, jax.core.Tracer) for v in jax.tree.leaves(args)):
+        # the arguments go to every device: as a few host arrays, not ~50 placed one by one
+        buffers, layout = pack_leaves(args)
+        return _solve_batch_packed(buffers, layout, structure, pool, shards)
+    p, x, s, m, u, xf = args
+    return _solve_batch_jit(p, x, structure, s, m, u, pool, shards, xf)
+
+
+def pack_leaves(tree, alone_bytes: int = PACK_ALONE_BYTES):
+    """(arrays, layout): the leaves of ``tree`` as host (NumPy) arrays for a jitted call,
+    the small ones packed end to end into one flat array per dtype, each leaf of at
+    least ``alone_bytes`` as it is; and the static layout :func:`unpack_leaves` takes
+    them apart by (the tree's structure, each leaf's shape and dtype).  Exact: the same
+    values, dtypes and shapes come back.
+
+    Why: a program split over several CPU devices (``shards``) takes each argument
+    replicated on every device, and placing an array that lives on one device costs
+    ~0.1 ms of Python however small it is (jax's resharding of a committed array), a
+    host array far less: the warm 100-robot replan's ~50 arguments cost ~6 ms of its
+    call (docs/SOLVER.md, "Batches: CPU devices")."""
+    leaves, treedef = jax.tree.flatten(tree)
+    host = [np.asarray(v) for v in leaves]
+    small = [h for h in host if h.nbytes < alone_bytes]
+    dtypes = tuple(sorted({h.dtype.str for h in small}))
+    packed = tuple(np.concatenate([h.reshape(-1) for h in small if h.dtype.str == d])
+                   for d in dtypes)
+    alone = tuple(h for h in host if h.nbytes >= alone_bytes)
+    shapes = tuple((h.shape, h.dtype.str, h.nbytes >= alone_bytes) for h in host)
+    return packed + alone, (treedef, shapes, dtypes)
+
+
+def unpack_leaves(arrays, layout):
+    """The tree :func:`pack_leaves` packed (``arrays`` as NumPy or jax arrays)."""
+    treedef, shapes, dtypes = layout
+    at = dict.fromkeys(dtypes, 0)
+    alone = iter(arrays[len(dtypes):])
+    leaves = []
+    for shape, d, own in shapes:
+        if own:
+            leaves.append(next(alone))
+            continue
+        n = math.prod(shape)
+        leaves.append(arrays[dtypes.index(d)][at[d]:at[d] + n].reshape(shape))
+        at[d] += n
+    return jax.tree.unflatten(treedef, leaves)
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "structure", "pool", "shards"))
+def _solve_batch_packed(buffers, layout, structure, pool, shards):
+    p, x, s, m, u, xf = unpack_leaves(buffers, layout)
+    return _solve_batch_jit.__wrapped__(p, x, structure, s, m, u, pool, shards, xf)
 
 
 def initial_guess_batch(params: NLPParams, structure: NLPStructure,
