@@ -26,13 +26,14 @@ def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
     Under a plain vmap every lane runs for as many iterations as the slowest lane needs
     (the finished ones idle).  Here a pool of ``pool`` slots steps together; a slot
     whose lane finishes takes the next unstarted lane.  Each lane still takes exactly
-    the iterations of :func:`jaxplan.solve.alsqp.solve` (the same results), but the work is
-    about the sum of the lanes' iterations instead of B times the largest.  pool = B (or None)
-    is the plain vmap.  A batch of at most LOCKSTEP_MAX lanes first steps all its lanes in
-    lockstep while more than half are active (:func:`_pooled`).  On a CPU, where a step
-    costs a fixed part plus about in proportion to its lanes, a small pool pays when
-    iteration counts are uneven; on a GPU a step of B lanes costs about what one of a
-    few lanes costs, so pool = B is right there (:func:`default_pool`).
+    the iterations of :func:`jaxplan.solve.alsqp.solve` (the same results to round-off: XLA
+    compiles steps of different widths into different kernels, docs/SOLVER.md "Speed"),
+    but the work is about the sum of the lanes' iterations instead of B times the largest.
+    pool = B (or None) is the plain vmap.  A batch of at most LOCKSTEP_MAX lanes first
+    steps all its lanes in lockstep while more than half are active (:func:`_pooled`).
+    On a CPU, where a step costs a fixed part plus about in proportion to its lanes, a
+    small pool pays when iteration counts are uneven; on a GPU a step of B lanes costs
+    about what one of a few lanes costs, so pool = B is right there (:func:`default_pool`).
     Pure; jit at the call site (``pool`` and ``structure`` are static).
     """
     s = settings
