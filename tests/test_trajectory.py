@@ -135,3 +135,29 @@ def test_evaluate_jit_and_vmap():
     vmapped = np.asarray(jax.vmap(lambda tr, t: tr.evaluate(t, 1))(tr, t))
     np.testing.assert_allclose(jitted, direct, atol=1e-13)
     np.testing.assert_allclose(vmapped, direct, atol=1e-13)
+
+
+def test_calls_outside_jit_run_one_compiled_program_per_shape():
+    """evaluate and shift called outside any transformation run one compiled program,
+    compiled once per shape (op by op every call traced its vmap again); inside a
+    transformation they add their operations to the caller's program (no nested call)."""
+    from jaxplan import trajectory as tj
+
+    tr = _random_traj(np.random.default_rng(12), batch=(7,), S=2)
+    t = np.linspace(0.0, 5.0, 13)[:, None]  # shapes no other test uses
+    n_eval, n_shift = tj._evaluate_jit._cache_size(), tj._shift_jit._cache_size()
+    first = np.asarray(tr.evaluate(t, 2))
+    again = np.asarray(tr.evaluate(t + 0.5, 2))
+    assert tj._evaluate_jit._cache_size() == n_eval + 1
+    np.testing.assert_array_equal(first[1:3], np.asarray(tr.evaluate(t[1:3], 2)))
+    assert tj._evaluate_jit._cache_size() == n_eval + 2  # a new shape: one more program
+    np.testing.assert_allclose(np.asarray(tr.shift(0.5).evaluate(t, 2)), again, rtol=1e-10,
+                               atol=1e-10)
+    tr.shift(0.25)
+    assert tj._shift_jit._cache_size() == n_shift + 1
+    tr.shift(np.full(7, 0.25))
+    assert tj._shift_jit._cache_size() == n_shift + 2
+    for f in (lambda tr, t: tr.evaluate(t, 2), lambda tr, t: tr.shift(t[0, 0]).coeffs):
+        jaxpr = jax.make_jaxpr(f)(tr, t)
+        names = {e.params.get("name") for e in jaxpr.eqns}
+        assert not names & {"_evaluate", "_shift"}, names
