@@ -77,7 +77,7 @@ def test_limit_derivatives_match_autodiff_where_the_limits_bind(q_lim, rest):
     mult = Multipliers(jnp.asarray(rng.uniform(0, 5, (st.n_col, 10))),
                        jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))))
     x = _x(rng, st, 0.8, 0.05)
-    g_lim = nlp.constraints(x, p, st).limits
+    g_lim = jax.jit(lambda xx: nlp.constraints(xx, p, st).limits)(x)  # eager: ~2 s more
     assert float(jnp.mean(mult.limits - 30.0 * g_lim > 0)) > 0.3  # active AL branch
     f = lambda xx: nlp.merit(xx, p, st, kc, mult, 30.0)
     v, g, H = jax.jit(lambda xx: nlp.merit_derivs(xx, p, st, kc, mult, 30.0))(x)
@@ -121,26 +121,35 @@ def test_z0_is_closed_form_prediction_and_jerk_is_exact(rest):
     p = random_problem(rng, n_others=2, rest=rest)
     T = 4.3
     x = jnp.zeros(st.n_x).at[-1].set(np.log(T))
-    traj = nlp.to_trajectory(x, p, st)
-    c1 = quintic_coeffs(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest, jnp.asarray(T))
     ts = np.linspace(0, T, 41)
-    from jaxplan.trajectory import Trajectory
-    ref = Trajectory.from_normalized(c1[None], T).evaluate(ts[:, None])
-    np.testing.assert_allclose(traj.evaluate(ts[:, None]), ref, atol=1e-10)
+
+    # each part in one program: op by op (eager) this test took ~3 s more
+    @jax.jit
+    def z0_and_quintic(x, p, t):
+        c1 = quintic_coeffs(p.p0, p.v0, p.a0, p.goal_p, p.goal_v, p.goal_a, p.rest,
+                            jnp.asarray(T))
+        return (nlp.to_trajectory(x, p, st).evaluate(t),
+                Trajectory.from_normalized(c1[None], T).evaluate(t))
+
+    got, ref = z0_and_quintic(x, p, ts[:, None])
+    np.testing.assert_allclose(got, ref, atol=1e-10)
     # analytic smoothness == numerical integral of |jerk|^2 (x with shape freedom)
     x = _x(rng, st, T, 0.5)
     if rest:  # a rest lane's two spare shape variables per axis are inert (cost only)
         z, tau = nlp.unpack(x, st)
         x = nlp.pack(z.at[:, -2:].set(0.0), tau)
-    traj = nlp.to_trajectory(x, p, st)
     tq, wq = np.polynomial.legendre.leggauss(20)
-    num = 0.0
-    for k in range(st.segments):
-        t = (k + (tq + 1) / 2) * T / st.segments
-        j = traj.evaluate(t, 3)
-        num += np.sum(wq[:, None] * np.asarray(j) ** 2) / 2 * T / st.segments
-    kc = nlp.kind_constants(p.rest, st)
-    ana = nlp.smooth_time(x, p._replace(weights=weights(k_t=0.0)), st, kc)
+    t = (np.arange(st.segments)[:, None] + (tq + 1) / 2) * T / st.segments  # (segments, 20)
+
+    @jax.jit
+    def jerk_and_smooth(x, p, t):
+        ana = nlp.smooth_time(x, p._replace(weights=weights(k_t=0.0)), st,
+                              nlp.kind_constants(p.rest, st))
+        return nlp.to_trajectory(x, p, st).evaluate(t, 3), ana
+
+    j, ana = jerk_and_smooth(x, p, t.reshape(-1))
+    j = np.asarray(j).reshape(st.segments, len(tq), -1)
+    num = sum(np.sum(wq[:, None] * j[k] ** 2) / 2 * T / st.segments for k in range(st.segments))
     np.testing.assert_allclose(ana, num, rtol=1e-10)
 
 
@@ -162,20 +171,22 @@ def test_paper_term_is_path_independent():
     sw = np.ones_like(t)
     sw[1:-1:2], sw[2:-1:2] = 4.0, 2.0
     sw *= (t[1] - t[0]) / 3.0
-    o = np.asarray(p.others.evaluate(t[:, None]))  # (K, Mo, N)
-    ov = np.asarray(p.others.evaluate(t[:, None], 1))
+    # the dense samples in one program: op by op (eager) this test took ~4 s more
+    samples = lambda tr, t: (tr.evaluate(t), tr.evaluate(t, 1), tr.evaluate(T))
+    o, ov, _ = map(np.asarray, jax.jit(samples)(p.others, t[:, None]))  # (K, Mo, N)
     rho = float(p.radius) + np.asarray(p.other_radius)
     mask = np.asarray(p.other_mask)
     dense, ends = [], []
+    plan_samples = jax.jit(lambda x, t: samples(
+        Trajectory.from_normalized(*nlp.coefficients(x, p, st)), t))
     for x in xs:
-        c, TT = nlp.coefficients(x, p, st)
-        tr = Trajectory.from_normalized(c, TT)
-        dx = np.asarray(tr.evaluate(t))[:, None, :] - o
-        dv = np.asarray(tr.evaluate(t, 1))[:, None, :] - ov
+        xt, vt, end = plan_samples(x, t)
+        dx = np.asarray(xt)[:, None, :] - o
+        dv = np.asarray(vt)[:, None, :] - ov
         d = np.linalg.norm(dx, axis=-1)
         integrand = np.sum(dx * dv, axis=-1) / d * np.exp(-k_p * (d - rho))
         dense.append(q_obs * np.sum(sw @ np.where(mask, integrand, 0.0)))
-        ends.append(np.asarray(tr.evaluate(T)))
+        ends.append(np.asarray(end))
     np.testing.assert_allclose(np.ptp(ends, axis=0), 0.0, atol=1e-9)  # same end points
     assert np.ptp([float(np.max(np.abs(np.asarray(x[:-1])))) for x in xs]) > 0.1  # paths differ
     np.testing.assert_allclose(dense, dense[0], rtol=1e-7)  # path independent
@@ -238,20 +249,23 @@ def test_coast_constraints_are_the_flown_coast(rest):
     rng = np.random.default_rng(7)
     p = random_problem(rng, n_others=4, rest=rest)
     x = _x(rng, st, 3.0, 0.3)
-    g = nlp.constraints(x, p, st).collision
-    g0 = nlp.constraints(x, p, st0).collision
+    # each in its own program (as the solver forms them): op by op (eager) this test took
+    # ~5 s more
+    g = jax.jit(lambda x, p: nlp.constraints(x, p, st).collision)(x, p)
+    g0 = jax.jit(lambda x, p: nlp.constraints(x, p, st0).collision)(x, p)
     assert g.shape == (st0.n_collision_samples + n, 10)
     np.testing.assert_array_equal(g[: st0.n_collision_samples], g0)
     if rest:
         np.testing.assert_array_equal(g[-n:], 1.0)
         return
-    traj = nlp.to_trajectory(x, p, st)
     tc = float(nlp.coast_time(p.limits))
     lim = p.limits
     assert tc == pytest.approx(lim.v_max / (2 * lim.a_max) + lim.a_max / (2 * lim.j_max))
     t = 3.0 + tc * np.arange(1, n + 1) / n
-    me = np.asarray(traj.evaluate(t[:, None])).reshape(n, -1)  # p(T) + v(T) (t - T)
-    others = np.asarray(p.others.evaluate(t[:, None])).reshape(n, 10, -1)  # (n, Mo, N)
+    me, others = jax.jit(lambda x, p, t: (nlp.to_trajectory(x, p, st).evaluate(t),
+                                          p.others.evaluate(t)))(x, p, t[:, None])
+    me = np.asarray(me).reshape(n, -1)  # p(T) + v(T) (t - T)
+    others = np.asarray(others).reshape(n, 10, -1)  # (n, Mo, N)
     rho = float(p.radius) + np.asarray(p.other_radius)
     ref = np.sum((me[:, None] - others) ** 2, axis=-1) - rho**2
     ref = np.where(np.asarray(p.other_mask), ref, 1.0)

@@ -21,6 +21,12 @@ from jaxplan.planner import (
 )
 from jaxplan.rollout import initial_state
 
+# jitted: op by op (eager), every operation compiles on its own for each new shape
+# (about half of this module's time)
+_predict_fresh = jax.jit(lambda p, v, a, g, gv, rest, w: predict_views(
+    fresh_views(p, v, a, g, gv, rest), w))
+_nearest = jax.jit(nearest_neighbors, static_argnums=3)
+
 
 def _fleet(M, seed):
     rng = np.random.default_rng(seed)
@@ -28,9 +34,9 @@ def _fleet(M, seed):
     g = rng.uniform(-6, 6, (M, 3))
     v = rng.normal(size=(M, 3)) * 0.5
     rest = rng.uniform(size=M) < 0.5
-    views = fresh_views(jnp.asarray(p), jnp.asarray(v), jnp.zeros((M, 3)), jnp.asarray(g),
-                        jnp.zeros((M, 3)), jnp.asarray(rest))
-    return predict_views(views, 1.0), rng
+    preds = _predict_fresh(jnp.asarray(p), jnp.asarray(v), jnp.zeros((M, 3)), jnp.asarray(g),
+                           jnp.zeros((M, 3)), jnp.asarray(rest), 1.0)
+    return preds, rng
 
 
 def test_nearest_neighbors_match_brute_force():
@@ -39,7 +45,7 @@ def test_nearest_neighbors_match_brute_force():
     radius = jnp.asarray(rng.uniform(0.2, 0.5, (M, M)))
     mask = ~np.eye(M, dtype=bool)
     mask[3, 7] = False  # an other that must never be picked
-    idx = np.asarray(nearest_neighbors(preds, radius, jnp.asarray(mask), K))
+    idx = np.asarray(_nearest(preds, radius, jnp.asarray(mask), K))
     lo, hi = NEIGHBOR_HORIZON_S
     host = jax.device_get(preds)  # sliced on the host; one compiled evaluation for all
     evaluate = jax.jit(lambda tr, t: tr.evaluate(t[:, None]))

@@ -212,12 +212,18 @@ def test_braking_plan_stops(rng):
     p = rng.normal(size=(4, 3))
     v = rng.normal(size=(4, 3))
     a = rng.normal(size=(4, 3))
-    b = braking_plan(jnp.asarray(p), jnp.asarray(v), jnp.asarray(a), jnp.full((4,), 4.0),
-                     PlannerStructure())
-    np.testing.assert_allclose(np.asarray(b.evaluate(0.0)), p, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(b.evaluate(0.0, 1)), v, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(b.evaluate(b.duration, 1)), 0.0, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(b.evaluate(b.duration + 1.0, 1)), 0.0, atol=1e-12)
+
+    @jax.jit  # one program: op by op (eager) this test took ~2 s more
+    def run(p, v, a):
+        b = braking_plan(p, v, a, jnp.full((4,), 4.0), PlannerStructure())
+        return (b.evaluate(0.0), b.evaluate(0.0, 1), b.evaluate(b.duration, 1),
+                b.evaluate(b.duration + 1.0, 1))
+
+    p0, v0, v_end, v_after = map(np.asarray, run(jnp.asarray(p), jnp.asarray(v), jnp.asarray(a)))
+    np.testing.assert_allclose(p0, p, atol=1e-12)
+    np.testing.assert_allclose(v0, v, atol=1e-12)
+    np.testing.assert_allclose(v_end, 0.0, atol=1e-12)
+    np.testing.assert_allclose(v_after, 0.0, atol=1e-12)
 
 
 def test_resample_is_exact(rng):
@@ -307,7 +313,8 @@ def test_plan_violation_weighs_an_obstacle_above_a_robot():
     others = Trajectory.hold(jnp.asarray(seen), 5, 1)
     mask = jnp.asarray([[False, True], [True, False]])
     orad = jnp.full((2, 2), 0.3)
-    got = np.asarray(plan_violation(plans, others, rad, orad, mask, static))
+    # one program (as the planner forms it): op by op (eager) this test took ~4 s more
+    got = np.asarray(jax.jit(plan_violation)(plans, others, rad, orad, mask, static))
     np.testing.assert_allclose(got, [STATIC_PRIORITY * 0.02, 0.03], atol=1e-5)  # sqrt smoothing
     # as three fallbacks of one robot: the plan into the robot wins
     code = pick_fallback(jnp.asarray(got[0]), jnp.asarray(got[1]), jnp.asarray(np.inf))
@@ -361,23 +368,29 @@ def test_a_silent_robot_is_held_where_it_can_have_braked_to():
     v = jnp.array([[1.5, 0.4, 0.0], [0.0, 0.0, 0.0]])
     a = jnp.array([[0.5, -1.0, 0.0], [0.0, 0.0, 0.0]])
     goal = jnp.array([[9.0, 3.0, 1.0], [3.0, 0.0, 1.0]])
-    views = fresh_views(p, v, a, goal, jnp.zeros_like(p), jnp.zeros(2, bool))
-    views = views._replace(age=jnp.full((2, 2), STALE_AFTER_S + 0.5))
     lim = Limits(jnp.full(2, 2.0), jnp.full(2, 4.0), jnp.full(2, 12.0))
     fp = SimpleNamespace(dt=jnp.asarray(0.125), prediction_weight=jnp.asarray(6.0), limits=lim)
-    # jitted: the same ops run eagerly cost ~3x longer (each op its own program)
-    preds, inflate, floor = jax.jit(lambda vw: view_predictions(fp, vw))(views)
-    held = np.asarray(preds.evaluate(0.0))[1, 0]  # robot 1's view of robot 0
-    # reference: robot 0's own path, its prediction for one period, then its braking plan
-    pr = jax.jit(predict_arrays)(p[:1], v[:1], a[:1], goal[:1], jnp.zeros((1, 3)),
-                                 jnp.zeros((1, 3)), jnp.zeros(1, bool), 6.0)
     t1 = np.linspace(0.0, 0.125, 50)
-    path = [np.asarray(pr.evaluate(jnp.asarray(t1)[:, None]))[:, 0]]
-    s1 = [x[0][None] for x in pr.state_at(jnp.asarray([0.125]))]
-    brake = jax.jit(lambda *a: braking_plan(*a, PlannerStructure()))(*s1, lim.a_max[:1])
     t2 = np.linspace(0.0, 3.0, 300)
-    path.append(np.asarray(brake.evaluate(jnp.asarray(t2)[:, None]))[:, 0])
-    d = np.linalg.norm(np.concatenate(path) - held, axis=-1)
+
+    # jitted, one program: the same ops run eagerly cost ~3x longer (each op its own program)
+    @jax.jit
+    def run(p, v, a, goal):
+        views = fresh_views(p, v, a, goal, jnp.zeros_like(p), jnp.zeros(2, bool))
+        views = views._replace(age=jnp.full((2, 2), STALE_AFTER_S + 0.5))
+        preds, inflate, floor = view_predictions(fp, views)
+        held = preds.evaluate(0.0)[1, 0]  # robot 1's view of robot 0
+        # reference: robot 0's own path, its prediction for one period, then its braking plan
+        pr = predict_arrays(p[:1], v[:1], a[:1], goal[:1], jnp.zeros((1, 3)),
+                            jnp.zeros((1, 3)), jnp.zeros(1, bool), 6.0)
+        s1 = [x[0][None] for x in pr.state_at(jnp.asarray([0.125]))]
+        brake = braking_plan(*s1, lim.a_max[:1], PlannerStructure())
+        path = [pr.evaluate(jnp.asarray(t1)[:, None])[:, 0],
+                brake.evaluate(jnp.asarray(t2)[:, None])[:, 0]]
+        return held, jnp.concatenate(path), inflate, floor
+
+    held, path, inflate, floor = map(np.asarray, run(p, v, a, goal))
+    d = np.linalg.norm(path - held, axis=-1)
     assert d.max() > 0.2  # it moved a fair way
     assert d.max() <= float(floor[1, 0]) + 1e-9
     assert float(inflate[1, 0]) >= float(floor[1, 0])
