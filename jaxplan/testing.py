@@ -6,6 +6,8 @@ nothing heavy (no compilation until a generator is called).
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -105,28 +107,43 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
     z = jnp.zeros((M, N))
     restv = jnp.broadcast_to(jnp.asarray(rest), (M,))
     pred = _predict(pos, vel, acc, goals, z, z, restv, prediction_weight)
-    others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
-    orad = jnp.full((M, M), radius, jnp.float64)  # strong: a weak leaf costs a conversion
-    mask = ~jnp.eye(M, dtype=bool)
-    idx = jnp.broadcast_to(jnp.arange(M), (M, M))
     if 0 < max_neighbors < M - 1:
-        others, orad, mask, idx = _select(others, orad, mask, max_neighbors)
+        others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
+        orad = jnp.full((M, M), radius, jnp.float64)  # strong: a weak one costs a conversion
+        others, orad, mask, idx = _select(others, orad, ~jnp.eye(M, dtype=bool), max_neighbors)
     else:
-        idx = jnp.asarray(_planner.all_others(M))
-        others, orad, mask = _planner.take_slots((others, orad, mask), idx)
+        others, orad, mask, idx = _every_other(pred, radius)
     w = w if w is not None else weights()
     lim = lim if lim is not None else limits()
-    bc = lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float64), (M,))
+    radius, w, lim, t_min = _per_robot((radius, w, lim, t_min), M)
     P = NLPParams(jnp.asarray(pos), jnp.asarray(vel), jnp.asarray(acc), jnp.asarray(goals), z, z,
-                  restv,
-                  others, orad, mask, bc(radius),
-                  jax.tree.map(bc, w), jax.tree.map(bc, lim), bc(t_min),
+                  restv, others, orad, mask, radius, w, lim, t_min,
                   None if static is None else jax.tree.map(
                       lambda a: jnp.broadcast_to(jnp.asarray(a), (M,) + np.shape(a)), static))
     return (P, idx) if return_neighbors else P
 
 
+# fleet_params' array work in compiled programs (once per fleet size): op by op (eager)
+# every new size compiled each of its ~25 operations on its own (~0.5 s a size)
 _select = jax.jit(_planner.select_neighbors, static_argnums=3)
+
+
+@jax.jit
+def _every_other(pred, radius):
+    """Every robot's M - 1 others in the planner's slots (:func:`jaxplan.planner.all_others`):
+    their predictions, radii, mask and indices."""
+    M = pred.coeffs.shape[0]
+    others = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), pred)
+    orad = jnp.full((M, M), radius, jnp.float64)  # strong: a weak leaf costs a conversion
+    idx = jnp.asarray(_planner.all_others(M))
+    others, orad, mask = _planner.take_slots((others, orad, ~jnp.eye(M, dtype=bool)), idx)
+    return others, orad, mask, idx
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _per_robot(tree, M: int):
+    """Every leaf of ``tree`` (scalars) as a float64 (M,) array."""
+    return jax.tree.map(lambda a: jnp.broadcast_to(jnp.asarray(a, jnp.float64), (M,)), tree)
 
 
 def antipodal(M: int, radius_m: float, rng, N: int = 3):

@@ -1,11 +1,17 @@
 """Fault injection: the channel's statistics, latency, noise, a frozen robot, config errors."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxplan.config import ConfigError, parse_config
-from jaxplan.faults import FaultParams, communicate, initial_comm
+from jaxplan.faults import FaultParams, initial_comm
+from jaxplan.faults import communicate as _communicate
+
+# one program per shape, as the planner runs it: op by op (eager) the tests' hundreds of
+# periods took ~1.5-2.5 s each
+communicate = jax.jit(_communicate)
 
 
 def _channel(M=6, loss=0.0, noise=0.0, latency=0, frozen=None, frozen_at=0.0, stale=False):
