@@ -12,6 +12,7 @@ the progress bar.  Batches of runs use the single ``lax.scan`` of
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 from dataclasses import dataclass
 
@@ -272,14 +273,40 @@ def simulate(fp: FleetParams, task: Task, structure: RolloutStructure, progress=
     return st, records, compile_s, run_s, ms
 
 
-def simulate_mjx(config: Config, scenario: Scenario, fp: FleetParams, task: Task,
-                 structure: RolloutStructure, progress=None):
-    """Backend "mjx": the planner closed around MJX quadrotors, one jitted period per call.
+# this process's compiled MJX periods: another run of the same structure, vehicles,
+# rates and shapes in this process (a notebook's loop over weights) reuses one
+_MJX_PROGRAMS = KeptPrograms(4)
 
-    Returns (final RolloutState, StepRecords (numpy, stacked), PeriodRecords (numpy,
-    stacked), compile_s, run_s, period_ms (steps,): wall time of each period, planning
-    and physics together).
-    """
+
+def _sim_key(sim) -> tuple:
+    """A simulated fleet (jaxplan.sim.fleet.SimModel) as a key: its tree (the static
+    fields: vehicle names, layout, rates, ...) and a digest of its arrays' shapes, dtypes
+    and bytes (~5 kB for a fleet; the starts are not in it)."""
+    leaves, tree = jax.tree.flatten(sim)
+    h = hashlib.sha256()
+    for x in leaves:
+        x = np.ascontiguousarray(np.asarray(x))
+        h.update(f"{x.shape}{x.dtype.str};".encode())
+        h.update(x.tobytes())
+    return tree, h.hexdigest()
+
+
+@dataclass(frozen=True)
+class MjxSetup:
+    """What a run on the MJX backend simulates: the fleet (jaxplan.sim.fleet.SimModel),
+    the replan period (s), the initial planner and simulator states, and the key its
+    compiled period is kept under in this process (:data:`_MJX_PROGRAMS`)."""
+
+    sim: object
+    period: float
+    state: object
+    sim_state: object
+    key: tuple
+
+
+def mjx_setup(config: Config, scenario: Scenario, fp: FleetParams, task: Task,
+              structure: RolloutStructure) -> MjxSetup:
+    """The simulated fleet and initial states of a run on the MJX backend (3-D only)."""
     from jaxplan.sim import closed_loop as cl
     from jaxplan.sim import fleet as sf
 
@@ -290,11 +317,36 @@ def simulate_mjx(config: Config, scenario: Scenario, fp: FleetParams, task: Task
                          physics_hz=config.sim.physics_hz, control_hz=config.sim.control_hz,
                          world=scenario.world)
     period = 1.0 / config.planner.replan_hz
-    fn = jax.jit(lambda fp, task, st, ss: cl.mjx_step(fp, task, st, ss, structure, sim, period))
     st, ss = cl.mjx_initial_state(task, structure, sim)
-    compiled, compile_s = timed(lambda: fn.lower(fp, task, st, ss).compile())
-    (st, ss), stacked, run_s, ms = _run_periods(lambda c: compiled(fp, task, *c), (st, ss),
-                                                structure.steps, progress)
+    # the period closes over the simulated fleet (its model's arrays are constants of
+    # the program): kept under the fleet's tree and bytes as well as the arguments' shapes
+    key = (dataclasses.replace(structure, steps=0), period, _sim_key(sim),
+           arg_key(fp, task, st, ss))
+    return MjxSetup(sim, period, st, ss, key)
+
+
+def simulate_mjx(config: Config, scenario: Scenario, fp: FleetParams, task: Task,
+                 structure: RolloutStructure, progress=None, setup: MjxSetup | None = None):
+    """Backend "mjx": the planner closed around MJX quadrotors, one jitted period per call.
+
+    ``setup``: :func:`mjx_setup`'s (made here when None).  Returns (final RolloutState,
+    StepRecords (numpy, stacked), PeriodRecords (numpy, stacked), compile_s (0 where this
+    process compiled the same period before: the same structure but its steps, vehicles,
+    rates and shapes), run_s, period_ms (steps,): wall time of each period, planning and
+    physics together).
+    """
+    from jaxplan.sim import closed_loop as cl
+
+    s = setup or mjx_setup(config, scenario, fp, task, structure)
+    compiled, compile_s = _MJX_PROGRAMS.get(s.key), 0.0
+    if compiled is None:
+        fn = jax.jit(lambda fp, task, st, ss: cl.mjx_step(fp, task, st, ss, structure, s.sim,
+                                                           s.period))
+        compiled, compile_s = timed(lambda: fn.lower(fp, task, s.state, s.sim_state).compile())
+        _MJX_PROGRAMS.put(s.key, compiled)
+    (st, ss), stacked, run_s, ms = _run_periods(lambda c: compiled(fp, task, *c),
+                                                (s.state, s.sim_state), structure.steps,
+                                                progress)
     return st, stacked.step, stacked.period, compile_s, run_s, ms
 
 
@@ -684,14 +736,17 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
     structure = structures(config)
     fp = fleet_params(config, scenario)
     task = task_of(config, scenario)
-    bar = None
+    bar = setup = None
     if progress:  # opened at the first replan, after the compile (its ETA is the run's)
         import sys
 
         from jaxplan.progress import AfterFirstUpdate
 
-        kept = config.sim.backend != "mjx" and _program_key(
-            structure, fp, task, initial_state(task, structure)) in _PROGRAMS
+        if config.sim.backend == "mjx":
+            setup = mjx_setup(config, scenario, fp, task, structure)
+            kept = setup.key in _MJX_PROGRAMS
+        else:
+            kept = _program_key(structure, fp, task, initial_state(task, structure)) in _PROGRAMS
         print(f"{config.name}: " + ("the planner is compiled already (in this process)" if kept
                                     else "compiling the planner") +
               f" ({scenario.start.shape[0]} robots, {structure.steps} replans, backend "
@@ -704,7 +759,7 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
 
     if config.sim.backend == "mjx":
         final, records, period, compile_s, run_s, solve_ms = simulate_mjx(
-            config, scenario, fp, task, structure, _prog)
+            config, scenario, fp, task, structure, _prog, setup)
     else:
         final, records, compile_s, run_s, solve_ms = simulate(fp, task, structure, _prog)
     if bar is not None:

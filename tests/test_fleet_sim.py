@@ -321,3 +321,45 @@ def test_init_errors():
         fleet.init_sim(["firefly"], [[0, 0, 1]], layout="big")
     with pytest.raises(ValueError, match="start_positions"):
         fleet.init_sim(["firefly", "neo11"], [[0, 0, 1]])
+
+
+# ----------------------------------------------------------------------------- kept periods
+
+
+def test_a_kept_mjx_period_is_keyed_on_the_fleet():
+    """experiment._sim_key: the same vehicles and rates give the same key wherever the
+    fleet starts (the starts are in the state, not in the program); another vehicle,
+    order or rate gives another."""
+    from jaxplan.experiment import _sim_key
+
+    key = lambda names, start=START, **kw: _sim_key(fleet.init_sim(names, start, **kw)[0])
+    base = key(NAMES)
+    assert key(NAMES, START + 1.0) == base
+    assert key(NAMES[::-1]) != base
+    assert key(["hummingbird", "firefly", "firefly"]) != base
+    assert key(NAMES, physics_hz=1000.0) != base
+
+
+@pytest.mark.slow  # an MJX closed loop of its own (~1 min on the 2-core CPU)
+def test_a_second_mjx_run_in_a_process_reuses_the_compiled_period():
+    """Two runs of one config in one process: the second compiles nothing and gives the
+    same records to the bit; a new weight reuses the period too (a traced value) and
+    changes the flight."""
+    import tomllib
+
+    from jaxplan.config import parse_config
+    from jaxplan.experiment import run
+    from tests.conftest import TINY_TOML
+
+    text = TINY_TOML.replace("duration_s = 12.0", 'duration_s = 2.0\nbackend = "mjx"')
+    cfg = parse_config(tomllib.loads(text), source="tiny_mjx.toml")
+    first, again = run(cfg), run(cfg)
+    assert again.compile_s == 0.0 < first.compile_s
+    for a, b in zip(jax.tree.leaves(first.arrays), jax.tree.leaves(again.arrays), strict=True):
+        np.testing.assert_array_equal(a, b)
+    heavier = text.replace("seed = 0", "seed = 0\n[planner]\nq_obs = 500.0")
+    heavier = parse_config(tomllib.loads(heavier), source="tiny_mjx.toml")
+    other = run(heavier)
+    assert other.compile_s == 0.0
+    assert any(not np.array_equal(a, b) for a, b in
+               zip(jax.tree.leaves(first.arrays), jax.tree.leaves(other.arrays), strict=True))
