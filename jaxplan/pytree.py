@@ -6,6 +6,12 @@ import jax
 import jax.numpy as jnp
 
 
+def traced(*trees) -> bool:
+    """Whether any leaf of ``trees`` is a JAX tracer: the caller runs inside jit, vmap,
+    grad ... (not on concrete arrays)."""
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
+
+
 def tree_where(cond, a, b):
     """Leafwise ``jnp.where(cond, a, b)`` over two pytrees of the same structure.
 

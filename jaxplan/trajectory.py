@@ -40,6 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan.pytree import traced
+
 
 def _falling(i: int, d: int) -> int:
     """i (i-1) ... (i-d+1): the factor d/ds^d brings to s^i."""
@@ -171,9 +173,9 @@ class Trajectory(NamedTuple):
             (broadcast(batch_shape, t.shape)..., N) in m / s^derivative.
 
         Called outside jit / vmap / grad it runs as one compiled program, compiled once
-        per shape of its arguments (see ``_traced``).
+        per shape of its arguments (see ``_evaluate_jit``).
         """
-        if not _traced(self, t):
+        if not traced(self, t):
             return _evaluate_jit(self, t, derivative)
         return _evaluate(self, t, derivative)
 
@@ -210,23 +212,12 @@ class Trajectory(NamedTuple):
         Args:
             dt: () or (...,) seconds, >= 0 (negative values are treated as 0).
         """
-        if not _traced(self, dt):
+        if not traced(self, dt):
             return _shift_jit(self, dt)
         return _shift(self, dt)
 
 
 # ---------------------------------------------------------------------- internals
-def _traced(*trees) -> bool:
-    """Whether any leaf is a JAX tracer: the call is inside jit, vmap, grad ...
-
-    Outside them :meth:`Trajectory.evaluate` and :meth:`Trajectory.shift` run as one
-    compiled program (cached per shape): op by op, the first call at each new shape
-    compiled every operation on its own (~0.5-1 s on a 2-core CPU) and every call traced
-    its vmap again (~40 ms a call, against ~0.1 ms compiled).  Inside a transformation
-    they add their operations to the caller's program, as any function does."""
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
-
-
 def _evaluate(traj: Trajectory, t, derivative: int) -> jax.Array:
     t = jnp.asarray(t, dtype=traj.coeffs.dtype)
     shape = jnp.broadcast_shapes(traj.batch_shape, t.shape)
@@ -255,6 +246,11 @@ def _shift(traj: Trajectory, dt) -> Trajectory:
     )
 
 
+# Outside jit, vmap, grad ... (no tracer among the arguments) Trajectory.evaluate and
+# Trajectory.shift run as one compiled program (cached per shape): op by op, the first
+# call at each new shape compiled every operation on its own (~0.5-1 s on a 2-core CPU)
+# and every call traced its vmap again (~40 ms a call, against ~0.1 ms compiled).  Inside
+# a transformation they add their operations to the caller's program, as any function does.
 _evaluate_jit = jax.jit(_evaluate, static_argnums=2)
 _shift_jit = jax.jit(_shift)
 

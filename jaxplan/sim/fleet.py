@@ -94,6 +94,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxplan.pytree import traced
 from jaxplan.sim import import_mjx, se3
 from jaxplan.sim import model as sim_model_lib
 from jaxplan.trajectory import Trajectory
@@ -567,7 +568,7 @@ def simulate_period(sim: SimModel, state: SimState, plans: Trajectory, t_plan0,
     if not period_s > 0:
         raise ValueError(f"period_s must be > 0, got {period_s}")
     t_plan0 = jnp.broadcast_to(jnp.asarray(t_plan0, jnp.float64), (sim.num_vehicles,))
-    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((plans, t_plan0))):
+    if not traced(plans, t_plan0):
         # Commit host-side inputs to the device: jit keys its cache on committed-ness, so
         # a loop mixing NumPy / Python inputs with jit outputs would otherwise compile twice.
         plans, t_plan0 = jax.device_put((plans, t_plan0), jax.devices()[0])

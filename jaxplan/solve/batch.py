@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
+from jaxplan.pytree import traced
 from jaxplan.solve.devices import as_strong_dtypes, default_shards, shard_lanes
 from jaxplan.solve.guess import initial_guess
 from jaxplan.solve.pool import default_pool, solve_lanes
@@ -87,7 +88,7 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
     args = (params, x0, as_strong_dtypes(settings),
             None if multipliers is None else as_strong_dtypes(multipliers),
             None if penalty is None else as_strong_dtypes(penalty), x_fallback)
-    if shards > 1 and not any(isinstance(v, jax.core.Tracer) for v in jax.tree.leaves(args)):
+    if shards > 1 and not traced(args):
         # the arguments go to every device: as a few host arrays, not ~50 placed one by one
         buffers, layout = pack_leaves(args)
         return _solve_batch_packed(buffers, layout, structure, pool, shards)
