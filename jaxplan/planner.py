@@ -500,7 +500,8 @@ def solve_fleet(fp: FleetParams, ps: PlanState, params: NLPParams, mult_prev,
     # times the largest (`jaxplan run experiments/benchmarks/random_box_20.toml` on a
     # 2-core CPU: 6.9 s with the pool, 22.8 s with solver_pool = M)
     pool = structure.solver_pool or solve.default_pool(M, n_others=params.other_mask.shape[-1])
-    return solve.solve_lanes(params, x0, nlp, fp.settings, mult, pen, x_fallback=x0, pool=pool)
+    return solve.solve_lanes(params, x0, nlp, fp.settings, mult, pen, x_fallback=x0, pool=pool,
+                             warm=~need_cold)
 
 
 def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol, p, v, a,

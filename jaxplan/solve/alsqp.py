@@ -17,10 +17,13 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
   floored at |lambda| >= reg * max|lambda| (eigh; negative curvature flipped), so the
   step is a descent direction (where the Hessian is provably positive definite with no
   eigenvalue below that floor, the same step by Cholesky:
-  :func:`jaxplan.solve.linalg.directions`); T >= t_min by projection (tau at its bound
-  with an outward gradient is held); the step is capped (|dtau| <= max_step_tau, |dz|_inf <=
-  max_step_z); backtracking Armijo line search on L_A (a failed trial is cut back to
-  just past the first constraint it pushed into the steep AL branch, else halved).
+  :func:`jaxplan.solve.linalg.directions`); with ``warm_convex_step``, a warm-started
+  lane's first step keeps to the Hessian's positive-curvature part (docs/SOLVER.md,
+  "Starting points"; the stopping test still reads the full decrement); T >= t_min by
+  projection (tau at its bound with an outward gradient is held); the step is capped
+  (|dtau| <= max_step_tau, |dz|_inf <= max_step_z); backtracking Armijo line search on
+  L_A (a failed trial is cut back to just past the first constraint it pushed into the
+  steep AL branch, else halved).
 * Stopping: Newton decrement^2 <= tol_stationarity (1 + |L_A|), max violation <=
   tol_feasibility, max lam~ |g| <= tol_complementarity (1 + |L_A|), where
   lam~ = max(0, lam - mu g) (the multiplier estimate whose Lagrangian gradient is the
@@ -144,13 +147,14 @@ class Lane(NamedTuple):
     params: NLPParams
     tau_min: jax.Array
     others: nlp.OthersPrep  # the others' predictions as the derivatives read them
+    warm: jax.Array  # bool: x0 is a warm start (the previous plan; warm_convex_step)
 
 
 def init_lane(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
-             multipliers, penalty, x_fallback):
+             multipliers, penalty, x_fallback, warm=False):
     """(lane, start state, finite_in, x0 as used) of one solve (see :func:`solve`)."""
     params, finite_in = sanitize(params)
-    x0 = jnp.asarray(x0, jnp.float64)
+    x0 = x0_given = jnp.asarray(x0, jnp.float64)
     if x_fallback is None:
         x_fallback = initial_guess(params, structure)
     x0 = jnp.where(jnp.all(jnp.isfinite(x0)), x0, x_fallback)
@@ -177,7 +181,9 @@ def init_lane(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
                  obj0=_objective_from_merit(f0, g0, mult0, mu0, params, structure),
                  viol0=max_violation(g0), stalls=jnp.asarray(0, jnp.int32),
                  why=jnp.asarray(0, jnp.int32), evals=jnp.asarray(0, jnp.int32))
-    lane = Lane(params, tau_min, nlp.prepare_others(params.others, params.other_mask))
+    # a start replaced by the fallback is not the warm start it was said to be
+    warm = jnp.asarray(warm, bool) & jnp.all(jnp.isfinite(jnp.asarray(x0_given, jnp.float64)))
+    lane = Lane(params, tau_min, nlp.prepare_others(params.others, params.other_mask), warm)
     return lane, st0, finite_in, x0
 
 
@@ -298,9 +304,10 @@ def _evaluate(st: State, lane: Lane, structure: NLPStructure, s: SolverSettings)
                        stalls=stalls, why=why)
 
 
-def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> State:
+def _advance(st: State, lane: Lane, ev: _Evaluation, d, ds, s: SolverSettings) -> State:
     """The second half of :func:`step_lanes` for one lane: the tests at the iterate, and the
-    next evaluation point, given the Newton direction d there (-|H|_reg^-1 grad)."""
+    next evaluation point, given the Newton direction d there (-|H|_reg^-1 grad) and
+    the step ds to take (d, or d on the positive-curvature part: :func:`step_lanes`)."""
     tau_min = lane.tau_min
     more, x, g, f_x, fy, pending, mult, mu, viol_ref, start, finite, grad_proj = (
         ev.more, ev.x, ev.g, ev.f_x, ev.fy, ev.pending, ev.mult, ev.mu, ev.viol_ref, ev.start,
@@ -314,6 +321,7 @@ def _advance(st: State, lane: Lane, ev: _Evaluation, d, s: SolverSettings) -> St
                                                strict=True)])
     conv = (theta <= s.tol_stationarity * scale) & (max_violation(g) <= s.tol_feasibility) & (
         compl <= s.tol_complementarity * scale)
+    d = ds
     cap = jnp.minimum(1.0, s.max_step_tau / jnp.maximum(jnp.abs(d[-1]), 1e-300))
     cap = jnp.minimum(
         cap, s.max_step_z / jnp.maximum(jnp.max(jnp.abs(d[:-1]), initial=0.0), 1e-300))
@@ -349,10 +357,16 @@ def step_lanes(st: State, lane: Lane, structure: NLPStructure, s: SolverSettings
     the iterate again, with the new ones).  So a trial costs the derivatives (a merit
     value alone would do for a rejected one), and no lane waits for another's
     backtracking: a pool step is one evaluation per lane.  The iterates are those of an
-    SQP iteration "multiplier update, derivatives at x, step, backtracking line search"."""
+    SQP iteration "multiplier update, derivatives at x, step, backtracking line search".
+
+    A warm lane's first step (``lane.warm``, ``s.warm_convex_step``, the iterate x0):
+    the Newton step on the Hessian's positive-curvature part, the flipped negative
+    curvature left out (docs/SOLVER.md, "Starting points"); its decrement for the
+    stopping test is the full direction's."""
     ev = jax.vmap(lambda a, b: _evaluate(a, b, structure, s))(st, lane)
-    d = directions(ev.hess_proj, ev.grad_proj, ev.start & is_active(st, s), s.reg)
-    return jax.vmap(lambda a, b, e, dd: _advance(a, b, e, dd, s))(st, lane, ev, d)
+    convex = lane.warm & s.warm_convex_step & (st.it == 0)  # a warm lane's first step
+    d, ds = directions(ev.hess_proj, ev.grad_proj, ev.start & is_active(st, s), s.reg, convex)
+    return jax.vmap(lambda a, b, e, dd, dds: _advance(a, b, e, dd, dds, s))(st, lane, ev, d, ds)
 
 
 def finish_lane(st: State, lane: Lane, finite_in, x0, structure: NLPStructure,
@@ -385,7 +399,8 @@ def finish_lane(st: State, lane: Lane, finite_in, x0, structure: NLPStructure,
 
 def solve(params: NLPParams, x0, structure: NLPStructure,
           settings: SolverSettings = SolverSettings(),
-          multipliers: Multipliers | None = None, penalty=None, x_fallback=None) -> Solution:
+          multipliers: Multipliers | None = None, penalty=None, x_fallback=None,
+          warm=False) -> Solution:
     """Solve one robot's NLP from x0 (pure; vmap/jit at the call site).
 
     Args:
@@ -401,7 +416,7 @@ def solve(params: NLPParams, x0, structure: NLPStructure,
     """
     s = settings
     lane, st0, finite_in, x0 = init_lane(params, x0, structure, s, multipliers, penalty,
-                                        x_fallback)
+                                        x_fallback, warm)
     one = lambda t: jax.tree.map(lambda a: a[None], t)
     lane1 = one(lane)  # a batch of one lane, as step_lanes takes it
     st = jax.lax.while_loop(lambda st: is_active(st, s)[0],

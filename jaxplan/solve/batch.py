@@ -23,7 +23,7 @@ PACK_ALONE_BYTES = 1 << 16  # pack_leaves: leaves this large go as they are
 
 @functools.partial(jax.jit, static_argnames=("structure", "pool", "shards"))
 def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool, shards=1,
-                     x_fallback=None):
+                     x_fallback=None, warm=None):
     lead = jnp.shape(params.radius)  # radius: () per problem
     # the batch size spelt out, not -1: a leaf may have no elements (the static rows'
     # multipliers of an NLP without static rows, (..., n_col, 0))
@@ -32,12 +32,13 @@ def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool
     if x_fallback is None:
         x_fallback = x0
 
-    def lanes(p, x, m, u, xf):
+    def lanes(p, x, m, u, xf, w):
         if x is None:  # a cold start: each shard forms its own lanes' guesses
             x = xf = jax.vmap(lambda q: initial_guess(q, structure))(p)
-        return solve_lanes(p, x, structure, settings, m, u, pool=pool, x_fallback=xf)
+        return solve_lanes(p, x, structure, settings, m, u, pool=pool, x_fallback=xf, warm=w)
 
-    args = (flat(params), flat(x0), flat(multipliers), flat(penalty), flat(x_fallback))
+    args = (flat(params), flat(x0), flat(multipliers), flat(penalty), flat(x_fallback),
+            flat(warm))
     sol = lanes(*args) if shards == 1 else shard_lanes(lanes, args, shards)
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), sol)
 
@@ -45,7 +46,7 @@ def _solve_batch_jit(params, x0, structure, settings, multipliers, penalty, pool
 def solve_batch(params: NLPParams, x0, structure: NLPStructure,
                 settings: SolverSettings = SolverSettings(),
                 multipliers: Multipliers | None = None, penalty=None,
-                pool: int | None = None, shards: int | None = None) -> Solution:
+                pool: int | None = None, shards: int | None = None, warm=None) -> Solution:
     """:func:`jaxplan.solve.alsqp.solve` over all leading axes of x0 (..., n_x) and params (same
     leading axes), jitted; ``settings`` is shared.  x0 = None: a cold start, every problem from
     its :func:`initial_guess`, formed in the same compiled program as the solve (each
@@ -54,7 +55,9 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
     Weights, limits and settings are traced: new values (Python scalars or arrays)
     reuse the compiled function (``_solve_batch_jit``).
     ``shards``: CPU devices the problems are split over (default :func:`default_shards`
-    of the number of problems; at most ``len(jax.devices("cpu"))``).  ``pool``: lanes
+    of the number of problems; at most ``len(jax.devices("cpu"))``).  ``warm``: bool of
+    x0's leading shape (or a scalar), the problems whose x0 is a warm start
+    (:func:`jaxplan.solve.alsqp.solve`'s ``warm``; default none).  ``pool``: lanes
     stepped at a time on each (:func:`solve_lanes`; default :func:`default_pool` of the
     problems per shard and of the other robots per problem).  Each problem takes the
     same iterations whatever the pool and shards; with shards the compiled code differs,
@@ -85,15 +88,20 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
         x_fallback = initial_guess_batch(
             jax.tree.map(lambda a: a.reshape((-1,) + a.shape[x0.ndim - 1:]), params),
             structure).reshape(x0.shape)
+    if warm is not None:
+        if x0 is None:
+            raise ValueError("warm: a cold start (x0 = None) has no warm starts")
+        warm = np.broadcast_to(np.asarray(warm, bool), tuple(lead)) if not traced(warm) \
+            else jnp.broadcast_to(jnp.asarray(warm, bool), tuple(lead))
     args = (params, x0, as_strong_dtypes(settings),
             None if multipliers is None else as_strong_dtypes(multipliers),
-            None if penalty is None else as_strong_dtypes(penalty), x_fallback)
+            None if penalty is None else as_strong_dtypes(penalty), x_fallback, warm)
     if shards > 1 and not traced(args):
         # the arguments go to every device: as a few host arrays, not ~50 placed one by one
         buffers, layout = pack_leaves(args)
         return _solve_batch_packed(buffers, layout, structure, pool, shards)
-    p, x, s, m, u, xf = args
-    return _solve_batch_jit(p, x, structure, s, m, u, pool, shards, xf)
+    p, x, s, m, u, xf, w = args
+    return _solve_batch_jit(p, x, structure, s, m, u, pool, shards, xf, w)
 
 
 def pack_leaves(tree, alone_bytes: int = PACK_ALONE_BYTES):
@@ -137,8 +145,8 @@ def unpack_leaves(arrays, layout):
 
 @functools.partial(jax.jit, static_argnames=("layout", "structure", "pool", "shards"))
 def _solve_batch_packed(buffers, layout, structure, pool, shards):
-    p, x, s, m, u, xf = unpack_leaves(buffers, layout)
-    return _solve_batch_jit.__wrapped__(p, x, structure, s, m, u, pool, shards, xf)
+    p, x, s, m, u, xf, w = unpack_leaves(buffers, layout)
+    return _solve_batch_jit.__wrapped__(p, x, structure, s, m, u, pool, shards, xf, w)
 
 
 def initial_guess_batch(params: NLPParams, structure: NLPStructure,

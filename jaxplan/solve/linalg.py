@@ -92,12 +92,22 @@ def direction(H, grad, reg):
     floors the objective's own curvature: Newton degrades to linear convergence and
     lanes run to max_iters (`jaxplan bench solver`, 100 robots: 1-4 such lanes per
     replan with 1e-10, none with 1e-12..1e-14, and 2x fewer iterations)."""
+    return direction_pair(H, grad, reg, False)[0]
+
+
+def direction_pair(H, grad, reg, convex):
+    """(d, step): d = :func:`direction`'s -|H|_reg^-1 grad, whose decrement -grad d the
+    stopping test reads; and the step to take: d, or where ``convex`` d without the
+    components along H's negative-curvature eigenvectors (the Newton step on the
+    positive-curvature part), unless that part has no component (then d)."""
     w, V = eigh_safe(H)
     wa = jnp.abs(w)
     floor = reg * jnp.max(wa) + 1e-300
     wm = jnp.maximum(wa, floor)
-    d = -V @ ((V.T @ grad) / wm)
-    return d
+    c = (V.T @ grad) / wm
+    d = -V @ c
+    cp = jnp.where(w < 0, 0.0, c)
+    return d, jnp.where(convex & jnp.any(cp != 0), -V @ cp, d)
 
 
 @lapack_safe
@@ -137,30 +147,34 @@ EIGH_CHUNK_CPU = 1
 EIGH_CHUNK = 2
 
 
-def _directions(H, grad, need, reg, chunk: int):
+def _directions(H, grad, need, reg, convex, chunk: int):
     """:func:`directions` with ``chunk`` lanes per eigh call."""
     B, n = grad.shape
     d, well = jax.vmap(newton_cholesky, in_axes=(0, 0, None))(H, grad, reg)
+    d = (d, d)  # a positive definite H has no negative curvature: its step is d
     use = need & ~well
     order = jnp.argsort(~use, stable=True)  # the lanes that need eigh first
     cnt = jnp.sum(use, dtype=jnp.int32)
     c = min(chunk, B)
-    one = jax.vmap(lambda h, gr: direction(h, gr, reg))
+    one = jax.vmap(lambda h, gr, cv: direction_pair(h, gr, reg, cv))
 
     def body(carry):
         i, d = carry
         idx = jax.lax.dynamic_slice(order, (i,), (c,))  # clamped to fit: repeats are harmless
-        de = one(H[idx], grad[idx])
-        d = d.at[idx].set(jnp.where(use[idx][:, None], de, d[idx]))
+        de = one(H[idx], grad[idx], convex[idx])
+        d = tuple(dd.at[idx].set(jnp.where(use[idx][:, None], e, dd[idx]))
+                  for dd, e in zip(d, de, strict=True))
         return i + c, d
 
     return jax.lax.while_loop(lambda carry: carry[0] < cnt, body, (jnp.int32(0), d))[1]
 
 
 @jax.custom_batching.custom_vmap
-def directions(H, grad, need, reg):
-    """The Newton directions -|H|_reg^-1 grad of a batch (B, n, n), (B, n) (what
-    :func:`direction` gives), for the lanes where ``need`` (the others: anything finite).
+def directions(H, grad, need, reg, convex):
+    """(d, step): the Newton directions -|H|_reg^-1 grad of a batch (B, n, n), (B, n)
+    (what :func:`direction` gives), for the lanes where ``need`` (the others: anything
+    finite), and the steps to take: d, or where ``convex`` (B,) d on H's
+    positive-curvature part alone (:func:`direction_pair`).
 
     Where H is positive definite with lambda_min >= reg * lambda_max, no eigenvalue is
     floored and the direction is -H^-1 grad: solved by Cholesky.  That bound is checked
@@ -172,13 +186,13 @@ def directions(H, grad, need, reg):
     ~40x the Cholesky).  LAPACK decomposes each matrix alone; the products around it are
     XLA's, and under an outer vmap they round differently with another chunk."""
     return jax.lax.platform_dependent(
-        H, grad, need, reg, cpu=lambda *a: _directions(*a, EIGH_CHUNK_CPU),
+        H, grad, need, reg, convex, cpu=lambda *a: _directions(*a, EIGH_CHUNK_CPU),
         default=lambda *a: _directions(*a, EIGH_CHUNK))
 
 
 @directions.def_vmap
-def _directions_vmap(axis_size, in_batched, H, grad, need, reg):
+def _directions_vmap(axis_size, in_batched, H, grad, need, reg, convex):
     axes = [0 if b else None for b in in_batched]
     out = jax.vmap(lambda *a: _directions(*a, EIGH_CHUNK), in_axes=axes,
-                   axis_size=axis_size)(H, grad, need, reg)
-    return out, True
+                   axis_size=axis_size)(H, grad, need, reg, convex)
+    return out, (True, True)

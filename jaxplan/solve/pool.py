@@ -19,7 +19,7 @@ from jaxplan.solve.types import Solution, SolverSettings
 def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
                 settings: SolverSettings = SolverSettings(),
                 multipliers: Multipliers | None = None, penalty=None, x_fallback=None,
-                pool: int | None = None) -> Solution:
+                pool: int | None = None, warm=None) -> Solution:
     """:func:`jaxplan.solve.alsqp.solve` over one leading axis of B lanes, ``pool`` lanes
     stepped at a time.
 
@@ -29,8 +29,10 @@ def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
     the iterations of :func:`jaxplan.solve.alsqp.solve` (the same results to round-off: XLA
     compiles steps of different widths into different kernels, docs/SOLVER.md "Speed"),
     but the work is about the sum of the lanes' iterations instead of B times the largest.
-    pool = B (or None) is the plain vmap.  A batch of at most LOCKSTEP_MAX lanes first
-    steps all its lanes in lockstep while more than half are active (:func:`_pooled`).
+    pool = B (or None) is the plain vmap.  ``warm`` (B,) bool: the lanes whose x0 is a warm
+    start (:func:`jaxplan.solve.alsqp.solve`'s ``warm``; default none).  A batch of at
+    most LOCKSTEP_MAX lanes first steps all its lanes in lockstep while more than half
+    are active (:func:`_pooled`).
     On a CPU, where a step costs a fixed part plus about in proportion to its lanes, a
     small pool pays when iteration counts are uneven; on a GPU a step of B lanes costs
     about what one of a few lanes costs, so pool = B is right there (:func:`default_pool`).
@@ -43,10 +45,12 @@ def solve_lanes(params: NLPParams, x0, structure: NLPStructure,
         x_fallback = jax.lax.cond(
             jnp.all(jnp.isfinite(x0)), lambda: jnp.zeros_like(x0),
             lambda: jax.vmap(lambda p: initial_guess(p, structure))(params))
+    warm = jnp.zeros((B,), bool) if warm is None else jnp.broadcast_to(warm, (B,))
     lane, st, finite_in, x0u = jax.vmap(
-        lambda p, x, m, pe, xf: init_lane(p, x, structure, s, m, pe, xf),
-        in_axes=(0, 0, None if multipliers is None else 0, None if penalty is None else 0, 0),
-    )(params, x0, multipliers, penalty, x_fallback)
+        lambda p, x, m, pe, xf, w: init_lane(p, x, structure, s, m, pe, xf, w),
+        in_axes=(0, 0, None if multipliers is None else 0, None if penalty is None else 0, 0,
+                 0),
+    )(params, x0, multipliers, penalty, x_fallback, warm)
     step = lambda st, ln: step_lanes(st, ln, structure, s)
     if pool == B:
         st = jax.lax.while_loop(lambda st: jnp.any(is_active(st, s)),

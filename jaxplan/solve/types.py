@@ -45,6 +45,9 @@ class SolverSettings(NamedTuple):
     infeasible_updates: int = 3
     infeasible_shrink: float = 0.9
     infeasible_penalty: float = 1e6
+    # a warm-started lane's first step on its Hessian's positive-curvature part (the
+    # lanes the caller marks ``warm``; docs/SOLVER.md, "Starting points")
+    warm_convex_step: bool = False
 
 
 class Solution(NamedTuple):
