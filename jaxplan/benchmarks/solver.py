@@ -99,7 +99,9 @@ def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighb
         mult = sol.multipliers._replace(
             collision=_planner.remap_slots(sol.multipliers.collision, idx, idx_new))
         idx = idx_new
-        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu)
+        # warm starts, marked as the planner marks them (SolverSettings.warm_convex_step)
+        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu,
+                                                    warm=True)
         sol, ms = _timed(fn, P, x0, mult, sol.penalty, repeats=repeats)
         warm_ms.append(ms)
         warm_conv.append(float(np.mean(np.asarray(sol.status) == solve.CONVERGED)))
@@ -266,7 +268,9 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
         pos, vel, acc = (np.asarray(a) for a in tr.state_at(jnp.full(tr.batch_shape, DT)))
         P, mult = nlps(pos, vel, acc, sol)
         x0 = ws(tr, P)
-        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu)
+        # warm starts, marked as the planner marks them (SolverSettings.warm_convex_step)
+        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu,
+                                                    warm=True)
         mu = sol.penalty
         sol, ms = _timed(fn, P, x0, mult, mu, repeats=reps)
         cases.append(dict(P=P, x0=x0, sol=jax.device_get(sol), ms=ms, mult=mult, mu=mu))
@@ -275,12 +279,14 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
 
 def _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps):
     """(Solution, ms, fixed ms, ms allowed no iteration, ms of the evaluation) of
-    solve_batch: the fixed part is the call's time apart from its steps (setting the
-    lanes up, placing the arguments, reporting them): the same call allowed no iteration
-    (the settings are traced, so it is the same program), less the one evaluation of L_A
-    and the constraints per lane that such a call makes for its report (:func:`_merit_ms`);
+    solve_batch from warm starts: the fixed part is the call's time apart from its steps
+    (setting the lanes up, placing the arguments, reporting them): the same call allowed
+    no iteration (the settings are traced, so it is the same program), less the one
+    evaluation of L_A and the constraints per lane that such a call makes for its report
+    (:func:`_merit_ms`);
     a call that iterates makes that evaluation as its first step."""
-    fn = lambda s: solve.solve_batch(P, x0, structure, s, mult, mu, pool=pool, shards=shards)
+    fn = lambda s: solve.solve_batch(P, x0, structure, s, mult, mu, pool=pool, shards=shards,
+                                     warm=True)
     sol, ms = _timed(fn, settings, repeats=reps)
     _, ms0 = _timed(fn, settings._replace(max_iters=jax.device_put(np.int32(0))), repeats=reps)
     me = _merit_ms(structure, P, x0, mult, mu, shards, reps)
@@ -325,14 +331,14 @@ def _run_steps(st, lane, settings, structure):
 def _step_us(structure, settings, problems: dict, whole, rounds: int = STEP_ROUNDS):
     """(median us of one solver step (solve.alsqp.step_lanes) for each of ``problems``,
     median ms of ``whole()``): problems name -> (P, x0, mult, mu), lanes on the leading
-    axis, one device; the lanes set up as solve_batch sets them up, then STEP_RUN steps
+    axis, one device; the lanes set up as solve_batch sets up warm starts, then STEP_RUN steps
     per timed call (from the first: a warm start's base evaluation, its directions, then
     trials); the calls of all the problems and of ``whole`` (the solve they come from)
     interleaved over ``rounds`` rounds, so that a drift of the machine's speed reaches
     them alike.  A step costs about the same whatever its lanes do (active or finished),
     so this is the cost of a step of that many lanes."""
     init = jax.jit(jax.vmap(lambda p, x, m, u: solve.alsqp.init_lane(
-        p, x, structure, settings, m, u, x)[:2]))
+        p, x, structure, settings, m, u, x, True)[:2]))
     runs = {}
     for name, (P, x0, mult, mu) in problems.items():
         lane, st = init(*solve.as_strong_dtypes((P, x0, mult, mu)))
@@ -386,7 +392,7 @@ def _time_split(structure, settings, cases, reps: int = 5) -> dict:
         (w, o): first((PP, x0, mm, mu), n) for w, n in widths.items()
         for o, PP, mm in (("with", P, mult), ("without", bare, bare_mult))},
         lambda: solve.solve_batch(P, x0, structure, settings, mult, mu, pool=pool,
-                                  shards=shards))
+                                  shards=shards, warm=True))
     # the steps' share of the measured time (the solve timed among the steps), split as
     # the steps timed alone cost
     alone = 1e-3 * (lock * us.get(("all_lanes", "with"), 0.0) + slots * us[("pool", "with")])
