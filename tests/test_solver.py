@@ -625,7 +625,8 @@ def test_a_warm_lanes_first_step_keeps_to_positive_curvature():
     lane marked warm, its first step is the Newton step on the positive-curvature part
     of the Hessian (indefinite at these warm starts: the slow test below): the same
     optimum (to the solver's tolerance) in fewer evaluations.  The setting without
-    ``warm``, or ``warm`` without the setting, gives the solve without them bitwise."""
+    ``warm``, or ``warm`` without the setting, gives the solve without them bitwise.  A
+    lane marked warm whose start is not finite (replaced by its fallback) is not warm."""
     st, P, x0, m, mu = _warm_fleet10()
     one = jax.jit(lambda p, x, mm, u, s, w: solve.solve(p, x, st, s, mm, u, warm=w))
     off = solve.SolverSettings()
@@ -640,6 +641,11 @@ def test_a_warm_lanes_first_step_keeps_to_positive_curvature():
         assert got.evaluations < ref.evaluations, (i, got.evaluations, ref.evaluations)
         assert abs(got.objective - ref.objective) <= 1e-9 * abs(ref.objective)
         np.testing.assert_allclose(got.x, ref.x, rtol=0, atol=1e-4)
+    # a start that is not finite is replaced (by x_fallback): not a warm start
+    marked = jax.jit(lambda x, w: solve.alsqp.init_lane(args[0], x, st, on, args[2], args[3],
+                                                       x0[1], w)[0].warm)
+    assert bool(marked(x0[0], True)) and not bool(marked(jnp.full_like(x0[0], jnp.nan), True))
+    assert not bool(marked(x0[0], False))
 
 
 @pytest.mark.slow  # the 10-lane pool's program of its own (~10 s)

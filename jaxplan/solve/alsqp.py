@@ -182,7 +182,7 @@ def init_lane(params: NLPParams, x0, structure: NLPStructure, s: SolverSettings,
                  viol0=max_violation(g0), stalls=jnp.asarray(0, jnp.int32),
                  why=jnp.asarray(0, jnp.int32), evals=jnp.asarray(0, jnp.int32))
     # a start replaced by the fallback is not the warm start it was said to be
-    warm = jnp.asarray(warm, bool) & jnp.all(jnp.isfinite(jnp.asarray(x0_given, jnp.float64)))
+    warm = jnp.asarray(warm, bool) & jnp.all(jnp.isfinite(x0_given))
     lane = Lane(params, tau_min, nlp.prepare_others(params.others, params.other_mask), warm)
     return lane, st0, finite_in, x0
 
