@@ -47,7 +47,7 @@ class SolverSettings(NamedTuple):
     infeasible_penalty: float = 1e6
     # a warm-started lane's first step on its Hessian's positive-curvature part (the
     # lanes the caller marks ``warm``; docs/SOLVER.md, "Starting points")
-    warm_convex_step: bool = False
+    warm_convex_step: bool = True
 
 
 class Solution(NamedTuple):
