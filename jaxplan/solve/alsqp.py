@@ -17,8 +17,8 @@ Method (per problem; ``solve`` is pure, jit- and vmap-able)
   floored at |lambda| >= reg * max|lambda| (eigh; negative curvature flipped), so the
   step is a descent direction (where the Hessian is provably positive definite with no
   eigenvalue below that floor, the same step by Cholesky:
-  :func:`jaxplan.solve.linalg.directions`); with ``warm_convex_step``, a warm-started
-  lane's first step keeps to the Hessian's positive-curvature part (docs/SOLVER.md,
+  :func:`jaxplan.solve.linalg.directions`); with ``warm_convex_step`` (the default), a
+  warm-started lane's first step keeps to the Hessian's positive-curvature part (docs/SOLVER.md,
   "Starting points"; the stopping test still reads the full decrement); T >= t_min by
   projection (tau at its bound with an outward gradient is held); the step is capped
   (|dtau| <= max_step_tau, |dz|_inf <= max_step_z); backtracking Armijo line search on

@@ -46,7 +46,8 @@ class SolverSettings(NamedTuple):
     infeasible_shrink: float = 0.9
     infeasible_penalty: float = 1e6
     # a warm-started lane's first step on its Hessian's positive-curvature part (the
-    # lanes the caller marks ``warm``; docs/SOLVER.md, "Starting points")
+    # lanes the caller marks ``warm``; docs/SOLVER.md, "Starting points"; off: every
+    # first step flipped, as a cold lane's)
     warm_convex_step: bool = True
 
 
