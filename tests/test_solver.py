@@ -629,7 +629,8 @@ def test_a_warm_lanes_first_step_keeps_to_positive_curvature():
     lane marked warm whose start is not finite (replaced by its fallback) is not warm."""
     st, P, x0, m, mu = _warm_fleet10()
     one = jax.jit(lambda p, x, mm, u, s, w: solve.solve(p, x, st, s, mm, u, warm=w))
-    off = solve.SolverSettings()
+    assert solve.SolverSettings().warm_convex_step  # the default (docs/SOLVER.md)
+    off = solve.SolverSettings(warm_convex_step=False)
     on = off._replace(warm_convex_step=True)
     for i in range(2):
         args = (index_params(P, i), x0[i], jax.tree.map(lambda a, i=i: a[i], m), mu[i])
@@ -668,7 +669,7 @@ def test_warm_convex_step_on_a_whole_warm_replan():
     fn = jax.jit(lambda s: solve.solve_lanes(P, x0, st, s, m, mu, x_fallback=x0,
                                              pool=solve.default_pool(10, n_others=9),
                                              warm=jnp.ones(10, bool)))
-    ref = jax.device_get(fn(solve.SolverSettings()))
+    ref = jax.device_get(fn(solve.SolverSettings(warm_convex_step=False)))
     got = jax.device_get(fn(solve.SolverSettings(warm_convex_step=True)))
     assert np.all(ref.status == solve.CONVERGED) and np.all(got.status == solve.CONVERGED)
     assert got.evaluations.sum() <= 0.8 * ref.evaluations.sum(), (got.evaluations,
