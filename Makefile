@@ -52,7 +52,7 @@ studies: $(STAMP)
 	$(PY) experiments/studies.py collision --out sweeps/studies
 	$(PY) experiments/studies.py faults --out sweeps/studies
 	$(PY) experiments/studies.py worlds --out sweeps/studies
-	$(PY) experiments/studies.py deadlock --out sweeps/studies
+	$(PY) experiments/studies.py deadlock --resolutions auto off --off-seeds 3 --out sweeps/studies
 
 bench: $(STAMP)
 	$(VENV)/bin/jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md --readme README.md

@@ -27,3 +27,30 @@ def test_a_run_of_some_cells_leaves_the_results_page_alone(tmp_path, capsys):
     assert (out / "deadlock.md").exists()  # the partial table, under --out only
     assert studies.main(args) == 0
     assert "<!-- table:deadlock -->" in page.read_text()
+
+
+def test_off_seeds_caps_only_the_stalling_baselines(tmp_path, monkeypatch):
+    """``--off-seeds`` caps the "off" cells of the planar and 3-D plane fleets, not the
+    benchmark fleets' "off" rows (compared with "auto" seed for seed), and ``make
+    studies`` runs the deadlock study so (the page's table is made by that command)."""
+    studies = _studies()
+    seen = {}
+
+    def cell(base, n, out, batch, **kw):
+        seen[out.name] = n
+        return dict(runs=n, success_rate=1.0, runs_with_collisions=0, min_separation_ratio=1.0,
+                    makespan_median_s=1.0, over_bound_median=1.0, over_bound_max=1.0, stalls=0,
+                    stalled_s=0.0, parked=0, peak_speed_ratio_max=1.0)
+
+    monkeypatch.setattr(studies, "_cell", cell)
+    assert studies.main(["deadlock", "--resolutions", "auto", "off", "--off-seeds", "3",
+                         "--out", str(tmp_path), "--no-results"]) == 0
+    for name, _, _, seeds, _ in studies.DEADLOCK_CELLS:
+        slug = studies._slug(name)
+        off = seeds if name in studies.OFF_COMPARED else min(seeds, 3)
+        assert seen[f"{slug}__auto__{seeds}seeds"] == seeds
+        assert seen[f"{slug}__off__{off}seeds"] == off
+    assert len(seen) == 2 * len(studies.DEADLOCK_CELLS)
+    assert set(studies.OFF_COMPARED) <= {c[0] for c in studies.DEADLOCK_CELLS}
+    make = (STUDIES.parent.parent / "Makefile").read_text()
+    assert "studies.py deadlock --resolutions auto off --off-seeds 3" in make
