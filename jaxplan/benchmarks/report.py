@@ -34,6 +34,15 @@ def _ms(x) -> str:
     return f"{x:.1f} ms" if x >= 10 else f"{x:.2f} ms"
 
 
+def _rounds(f: dict, key: str) -> str:
+    """`` (rounds a / b / c)``: the figure ``key`` in each round of its timings
+    (benchmarks.solver._rounds), where the JSON has them."""
+    r = f.get(f"{key}_rounds")
+    if not r or len(r) < 2:
+        return ""
+    return " (rounds " + " / ".join(_ms(x).removesuffix(" ms") for x in r) + ")"
+
+
 def _pct(x) -> str:
     return f"{100 * x:.0f}%"
 
@@ -132,11 +141,13 @@ def _product_table(r: dict) -> tuple[list[str], dict[str, str]]:
         lambda x: f"{x['nlp']['n_x']} ({x['nlp']['segments']}, {x['nlp']['n_coast_samples']}, "
                   f"{x['nlp'].get('n_static', 0)})")
     row("JAX, 10-robot replan, warm (median of the replans' medians)",
-        lambda x: f"{_ms(x['fleet10']['warm_ms'])}, {_pct(x['fleet10']['warm_conv'])} converged, "
+        lambda x: f"{_ms(x['fleet10']['warm_ms'])}{_rounds(x['fleet10'], 'warm_ms')}, "
+                  f"{_pct(x['fleet10']['warm_conv'])} converged, "
                   f"<= {x['fleet10']['warm_iters_max']} iterations",
         "<= 5 ms: " + _verdict(f["warm_ms"] <= 5.0, _warm_why(f, load)))
     row("JAX, cold (initial guesses included) / warm",
-        lambda x: f"{_ms(x['fleet10']['cold_ms'])} ({x['cold_over_warm']:.2f}x warm)",
+        lambda x: f"{_ms(x['fleet10']['cold_ms'])}{_rounds(x['fleet10'], 'cold_ms')} "
+                  f"({x['cold_over_warm']:.2f}x warm)",
         "cold <= 2x warm: " + _verdict(pr["cold_over_warm"] <= 2.0,
                                        f"{pr['cold_over_warm']:.2f}x"))
     row("IPOPT (CasADi, SX derivatives), 10 NLPs one after another, warm / cold",
@@ -187,7 +198,8 @@ def _product_table(r: dict) -> tuple[list[str], dict[str, str]]:
         g = pr["fleet100"]
         rows["fleet100"] = (
             f"| 100 robots, every other robot in every NLP, warm (whole machine) | "
-            f"{_ms(g['warm_ms'])}, {_pct(g['warm_conv'])} converged; iterations per lane median "
+            f"{_ms(g['warm_ms'])}{_rounds(g, 'warm_ms')}, {_pct(g['warm_conv'])} converged; "
+            "iterations per lane median "
             f"{g['warm_iters_median']:.0f}, max {g['warm_iters_max']}; "
             f"{g['warm_iters_sum_per_replan']:.0f} lane-iterations per replan at "
             f"{1e3 * g['warm_ms_per_lane_iteration']:.0f} us each |"
@@ -285,7 +297,12 @@ def _product(r: dict) -> list[str]:
              "paper's is 1 segment, no coast, no static row. A 10-robot antipodal fleet: the "
              "cold replan and "
              f"{pr.get('warm_replans', '')} warm replans (the planner's warm start), each "
-             f"timed {pr.get('repeats', '')} times (medians); IPOPT (CasADi, exact SX "
+             f"timed {pr.get('repeats', '')} times (medians)"
+             + (" in each of three rounds minutes apart (before, between and after the "
+                "references; the 100-robot fleet's before and after the 10-robot "
+                "comparisons and after its time split), each figure the median of its "
+                "rounds" if "warm_ms_rounds" in f else "")
+             + "; IPOPT (CasADi, exact SX "
              "derivatives, MUMPS) and NLopt SLSQP (JAX callbacks) solve the same NLPs one "
              "after another from the same starts. One core against one core: a child "
              "process pinned to one CPU with one JAX device and one XLA thread "

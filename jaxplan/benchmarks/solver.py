@@ -277,6 +277,32 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
     return structure, cases, compile_s, cpu_per_wall
 
 
+def _retime(cases, structure, settings, reps) -> list[float]:
+    """Median ms of ``reps`` calls (after one untimed) of each of :func:`_fleet_cases`'s
+    cases again, as it timed them (the cold one with its initial guesses, the warm ones
+    from their warm starts): another round of the same timings, taken later in the run."""
+    warm = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu, warm=True)
+    return [_timed(lambda P: _cold(P, structure, settings), c["P"], repeats=reps)[1]
+            if "mult" not in c else _timed(warm, c["P"], c["x0"], c["mult"], c["mu"],
+                                           repeats=reps)[1] for c in cases]
+
+
+def _rounds(cases, later: list[list[float]]) -> dict:
+    """Combine the rounds of timings of ``cases`` (their own ``ms``, then each of
+    ``later`` from :func:`_retime`): each case's ``ms`` becomes the median of its rounds
+    (its rounds kept as ``ms_rounds``).  On a shared machine the same call can take
+    ~1.8x longer for a minute or more (docs/SOLVER.md, "Speed"), so a figure from calls
+    seconds apart says more about that minute than about the code; rounds minutes apart
+    (before, between and after the references) sample several.  Returns the headline
+    figures per round: cold (the first case) and warm (the median of the others) ms."""
+    for i, c in enumerate(cases):
+        c["ms_rounds"] = [c["ms"], *(r[i] for r in later)]
+        c["ms"] = float(statistics.median(c["ms_rounds"]))
+    per = list(zip(*(c["ms_rounds"] for c in cases), strict=True))
+    return dict(cold_ms_rounds=[r[0] for r in per],
+                warm_ms_rounds=[float(statistics.median(r[1:])) for r in per])
+
+
 def _accounted(structure, settings, P, x0, mult, mu, pool, shards, reps):
     """(Solution, ms, fixed ms, ms allowed no iteration, ms of the evaluation) of
     solve_batch from warm starts: the fixed part is the call's time apart from its steps
@@ -509,8 +535,13 @@ def _pairs(cases, refs):
 def compare(kind: str, reps: int = 3, steps: int = WARM_STEPS, workers: int = 1) -> dict:
     """The 10-robot comparison of one NLP kind in this process (module doc)."""
     structure, cases, compile_s, cpu_per_wall = _fleet_cases(kind, 10, 5.0, 0, steps, reps)
+    settings = nlp_setup(kind)[1]
+    # JAX's timings in three rounds: before, between and after the references (_rounds)
     ip = _ref_cases(kind, cases, "ipopt", reps, workers)
+    later = [_retime(cases, structure, settings, reps)]
     sq = _ref_cases(kind, cases, "slsqp", reps, workers)
+    later.append(_retime(cases, structure, settings, reps))
+    rounds = _rounds(cases, later)
     med = lambda xs: float(statistics.median(xs))
     conv = lambda c: float(np.mean(c["sol"].status == solve.CONVERGED))
     jw = med([c["ms"] for c in cases[1:]])
@@ -518,6 +549,7 @@ def compare(kind: str, reps: int = 3, steps: int = WARM_STEPS, workers: int = 1)
         "nlp": dict(structure.__dict__, n_x=structure.n_x),
         "fleet10": dict(cold_ms=cases[0]["ms"], warm_ms=jw,
                         warm_ms_all=[c["ms"] for c in cases[1:]], compile_s=compile_s,
+                        **rounds,
                         cold_conv=conv(cases[0]), warm_conv=med([conv(c) for c in cases[1:]]),
                         cold_iters_max=int(np.max(cases[0]["sol"].iterations)),
                         warm_lane_iters_per_replan=med([int(np.sum(c["sol"].iterations))
@@ -590,12 +622,19 @@ def product_and_paper(quick: bool = False) -> dict:
     reps, steps = (2, 2) if quick else (3, WARM_STEPS)
     ncpu = len(os.sched_getaffinity(0))
     out = {}
+    # 100 robots, every other robot in every NLP, the product NLP, warm (whole machine):
+    # its first round of timings here, the second after the 10-robot comparisons, the
+    # third after its time split (_rounds)
+    structure, cases, comp, _ = _fleet_cases("product", 100, 15.0, 1, 2, reps)
+    settings = nlp_setup("product")[1]
     for kind in ("product", "paper"):
         r = _one_core(kind, reps, steps)
         r["whole_machine"] = compare(kind, reps, steps, workers=ncpu)
         out[kind] = r
-    # 100 robots, every other robot in every NLP, the product NLP, warm (whole machine)
-    structure, cases, comp, _ = _fleet_cases("product", 100, 15.0, 1, 2, reps)
+    later = [_retime(cases, structure, settings, reps)]
+    split = _time_split(structure, settings, cases[1:], reps)
+    later.append(_retime(cases, structure, settings, reps))
+    rounds = _rounds(cases, later)
     it = np.concatenate([np.asarray(c["sol"].iterations) for c in cases[1:]])
     out["product"]["fleet100"] = dict(
         cold_ms=cases[0]["ms"], warm_ms=float(statistics.median(c["ms"] for c in cases[1:])),
@@ -604,9 +643,8 @@ def product_and_paper(quick: bool = False) -> dict:
         warm_iters_median=float(np.median(it)), warm_iters_max=int(np.max(it)),
         warm_iters_sum_per_replan=float(it.sum() / len(cases[1:])),
         warm_ms_per_lane_iteration=float(statistics.median(c["ms"] for c in cases[1:]))
-        / float(it.sum() / len(cases[1:])))
-    out["product"]["fleet100"]["time_split"] = _time_split(structure, nlp_setup("product")[1],
-                                                           cases[1:], reps)
+        / float(it.sum() / len(cases[1:])), **rounds)
+    out["product"]["fleet100"]["time_split"] = split
     return out
 
 
