@@ -270,4 +270,4 @@ def test_the_targets_timings_are_the_median_of_rounds_minutes_apart():
     assert "4.20 ms (rounds 4.00 / 5.20 / 4.20), 100% converged" in page
     assert "(rounds 9.00 / 6.00 / 6.50) (1.70x warm)" in page
     assert "47.0 ms (rounds 61.4 / 33.5 / 47.0), 100% converged" in page
-    assert "in each of three rounds minutes apart" in page
+    assert "JAX's once in each of that many rounds minutes apart" in page

@@ -298,10 +298,10 @@ def _product(r: dict) -> list[str]:
              "cold replan and "
              f"{pr.get('warm_replans', '')} warm replans (the planner's warm start), each "
              f"timed {pr.get('repeats', '')} times (medians)"
-             + (" in each of three rounds minutes apart (before, between and after the "
-                "references; the 100-robot fleet's before and after the 10-robot "
-                "comparisons and after its time split), each figure the median of its "
-                "rounds" if "warm_ms_rounds" in f else "")
+             + (", JAX's once in each of that many rounds minutes apart (before, between "
+                "and after the references; the 100-robot fleet's before and after the "
+                "10-robot comparisons and after its time split), each round's figure shown"
+                if "warm_ms_rounds" in f else "")
              + "; IPOPT (CasADi, exact SX "
              "derivatives, MUMPS) and NLopt SLSQP (JAX callbacks) solve the same NLPs one "
              "after another from the same starts. One core against one core: a child "

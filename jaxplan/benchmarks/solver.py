@@ -277,24 +277,25 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
     return structure, cases, compile_s, cpu_per_wall
 
 
-def _retime(cases, structure, settings, reps) -> list[float]:
-    """Median ms of ``reps`` calls (after one untimed) of each of :func:`_fleet_cases`'s
-    cases again, as it timed them (the cold one with its initial guesses, the warm ones
-    from their warm starts): another round of the same timings, taken later in the run."""
+def _retime(cases, structure, settings) -> list[float]:
+    """Ms of one call (after one untimed) of each of :func:`_fleet_cases`'s cases again,
+    as it timed them (the cold one with its initial guesses, the warm ones from their
+    warm starts): another round of the same timings, taken later in the run."""
     warm = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu, warm=True)
-    return [_timed(lambda P: _cold(P, structure, settings), c["P"], repeats=reps)[1]
+    return [_timed(lambda P: _cold(P, structure, settings), c["P"], repeats=1)[1]
             if "mult" not in c else _timed(warm, c["P"], c["x0"], c["mult"], c["mu"],
-                                           repeats=reps)[1] for c in cases]
+                                           repeats=1)[1] for c in cases]
 
 
 def _rounds(cases, later: list[list[float]]) -> dict:
-    """Combine the rounds of timings of ``cases`` (their own ``ms``, then each of
-    ``later`` from :func:`_retime`): each case's ``ms`` becomes the median of its rounds
-    (its rounds kept as ``ms_rounds``).  On a shared machine the same call can take
-    ~1.8x longer for a minute or more (docs/SOLVER.md, "Speed"), so a figure from calls
-    seconds apart says more about that minute than about the code; rounds minutes apart
-    (before, between and after the references) sample several.  Returns the headline
-    figures per round: cold (the first case) and warm (the median of the others) ms."""
+    """Combine the rounds of timings of ``cases`` (their own ``ms``, from
+    :func:`_fleet_cases` with one repeat, then each of ``later`` from :func:`_retime`):
+    each case's ``ms`` becomes the median of its rounds (kept as ``ms_rounds``), so that
+    a case is timed as often as the references time it (``reps`` calls, one per round)
+    but minutes apart.  On a shared machine the same call can take ~1.8x longer for a
+    minute or more (docs/SOLVER.md, "Speed"): calls seconds apart say more about that
+    minute than about the code.  Returns the headline figures per round: cold (the
+    first case) and warm (the median of the others) ms."""
     for i, c in enumerate(cases):
         c["ms_rounds"] = [c["ms"], *(r[i] for r in later)]
         c["ms"] = float(statistics.median(c["ms_rounds"]))
@@ -534,13 +535,14 @@ def _pairs(cases, refs):
 
 def compare(kind: str, reps: int = 3, steps: int = WARM_STEPS, workers: int = 1) -> dict:
     """The 10-robot comparison of one NLP kind in this process (module doc)."""
-    structure, cases, compile_s, cpu_per_wall = _fleet_cases(kind, 10, 5.0, 0, steps, reps)
+    # JAX's ``reps`` timings of each replan in rounds (_rounds): before the references,
+    # between them, after them
+    structure, cases, compile_s, cpu_per_wall = _fleet_cases(kind, 10, 5.0, 0, steps, 1)
     settings = nlp_setup(kind)[1]
-    # JAX's timings in three rounds: before, between and after the references (_rounds)
     ip = _ref_cases(kind, cases, "ipopt", reps, workers)
-    later = [_retime(cases, structure, settings, reps)]
+    later = [_retime(cases, structure, settings) for _ in range(min(reps - 1, 1))]
     sq = _ref_cases(kind, cases, "slsqp", reps, workers)
-    later.append(_retime(cases, structure, settings, reps))
+    later += [_retime(cases, structure, settings) for _ in range(reps - 1 - len(later))]
     rounds = _rounds(cases, later)
     med = lambda xs: float(statistics.median(xs))
     conv = lambda c: float(np.mean(c["sol"].status == solve.CONVERGED))
@@ -623,17 +625,17 @@ def product_and_paper(quick: bool = False) -> dict:
     ncpu = len(os.sched_getaffinity(0))
     out = {}
     # 100 robots, every other robot in every NLP, the product NLP, warm (whole machine):
-    # its first round of timings here, the second after the 10-robot comparisons, the
-    # third after its time split (_rounds)
-    structure, cases, comp, _ = _fleet_cases("product", 100, 15.0, 1, 2, reps)
+    # its ``reps`` timings in rounds (_rounds): here, after the 10-robot comparisons,
+    # after its time split
+    structure, cases, comp, _ = _fleet_cases("product", 100, 15.0, 1, 2, 1)
     settings = nlp_setup("product")[1]
     for kind in ("product", "paper"):
         r = _one_core(kind, reps, steps)
         r["whole_machine"] = compare(kind, reps, steps, workers=ncpu)
         out[kind] = r
-    later = [_retime(cases, structure, settings, reps)]
+    later = [_retime(cases, structure, settings) for _ in range(min(reps - 1, 1))]
     split = _time_split(structure, settings, cases[1:], reps)
-    later.append(_retime(cases, structure, settings, reps))
+    later += [_retime(cases, structure, settings) for _ in range(reps - 1 - len(later))]
     rounds = _rounds(cases, later)
     it = np.concatenate([np.asarray(c["sol"].iterations) for c in cases[1:]])
     out["product"]["fleet100"] = dict(
