@@ -68,7 +68,6 @@ import argparse
 import datetime
 import json
 import math
-import os
 import platform
 import re
 import shlex
@@ -167,26 +166,11 @@ def _slug(s: str) -> str:
 def machine() -> str:
     """One line naming this machine: CPU count, model and widest vector instructions
     (XLA compiles for them: the closed loops' round-off, and so a chaotic run's outcome,
-    differs between an AVX-512 and an AVX2 machine of the same model name), OS, JAX's
-    default backend."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:
-        cores = os.cpu_count() or 1
-    model, flags = platform.processor() or "", set()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name") and not flags:
-                    model = line.split(":", 1)[1].strip()
-                elif line.startswith("flags"):
-                    flags = set(line.split(":", 1)[1].split())
-                    break
-    except OSError:
-        pass
-    isa = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else ""
-    model = ", ".join(x for x in (model, isa) if x)
-    cpu = f"{cores}-core CPU" + (f" ({model})" if model else "")
+    differs between an AVX-512 and an AVX2 machine of the same model name;
+    :func:`jaxplan.benchmarks.common.cpu_line`), OS, JAX's default backend."""
+    from jaxplan.benchmarks.common import cpu_line
+
+    cpu = cpu_line()
     try:
         import jax
 
@@ -194,7 +178,7 @@ def machine() -> str:
         if backend != "cpu":
             dev = jax.devices()[0]
             cpu += f", {backend.upper()} {getattr(dev, 'device_kind', '')}".rstrip()
-    except Exception:  # noqa: BLE001 - the page must be writable without JAX
+    except Exception:  # noqa: BLE001 - a backend that cannot be queried: the CPU line
         pass
     return f"{cpu}, {platform.system()} {platform.machine()}"
 

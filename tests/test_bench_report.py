@@ -271,3 +271,22 @@ def test_the_targets_timings_are_the_median_of_rounds_minutes_apart():
     assert "(rounds 9.00 / 6.00 / 6.50) (1.70x warm)" in page
     assert "47.0 ms (rounds 61.4 / 33.5 / 47.0), 100% converged" in page
     assert "JAX's once in each of that many rounds minutes apart" in page
+
+
+def test_the_machine_line_names_the_vector_instructions(monkeypatch):
+    """The benchmark pages' and the studies' machine line names the widest vector
+    instructions (XLA compiles for them: speed and round-off differ between AVX-512 and
+    AVX2 machines of one model name)."""
+    from unittest import mock
+
+    import jaxplan.benchmarks.common as common
+
+    def line(flags):
+        info = f"model name\t: AMD EPYC\nflags\t\t: fpu sse2 {flags}\n"
+        with mock.patch.object(common, "open", mock.mock_open(read_data=info), create=True):
+            return common.cpu_line()
+
+    monkeypatch.setattr(common.os, "sched_getaffinity", lambda _: {0, 1})
+    assert line("avx avx2 avx512f avx512dq") == "2-core CPU (AMD EPYC, AVX-512)"
+    assert line("avx avx2") == "2-core CPU (AMD EPYC, AVX2)"
+    assert line("avx") == "2-core CPU (AMD EPYC)"

@@ -15,8 +15,6 @@ line names the command, the machine, the commit and the date.
 from __future__ import annotations
 
 import datetime
-import os
-import platform
 import subprocess
 from pathlib import Path
 
@@ -399,13 +397,9 @@ def write_readme(path, results: dict) -> Path:
 
 
 def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            cpu = next(ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{os.cpu_count()}-core CPU ({cpu})"
+    from jaxplan.benchmarks.common import cpu_line
+
+    return cpu_line()
 
 
 def _commit() -> str:
