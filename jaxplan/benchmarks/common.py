@@ -46,7 +46,7 @@ def cpu_line() -> str:
     and its widest vector instructions (AVX-512 or AVX2).  XLA compiles for the widest
     it finds, so both the speed and the round-off of a compiled program differ between
     two machines of one model name (an AVX-512 AMD EPYC ran the product's warm 10-robot
-    replan in 3.1-4.1 ms where an AVX2 one took 4.7-7.7 ms)."""
+    replan in 3.1-4.5 ms where an AVX2 one took 4.7-7.7 ms)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:

@@ -75,6 +75,13 @@ def _cold(P, structure, settings):
     return solve.solve_batch(P, None, structure, settings)
 
 
+def _warm(P, x0, mult, mu, structure, settings):
+    """A warm replan as timed here: solve_batch from warm starts, marked as the planner
+    marks them (SolverSettings.warm_convex_step), with the previous multipliers and
+    penalty."""
+    return solve.solve_batch(P, x0, structure, settings, mult, mu, warm=True)
+
+
 def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighbors=0):
     """Cold solve, then ``steps`` warm replans 1/8 s apart (ideal tracking)."""
     pos, goals = antipodal(M, radius_m, rng)
@@ -99,9 +106,7 @@ def _fleet_run(M, radius_m, structure, settings, rng, steps, repeats, max_neighb
         mult = sol.multipliers._replace(
             collision=_planner.remap_slots(sol.multipliers.collision, idx, idx_new))
         idx = idx_new
-        # warm starts, marked as the planner marks them (SolverSettings.warm_convex_step)
-        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu,
-                                                    warm=True)
+        fn = lambda P, x0, m, mu: _warm(P, x0, m, mu, structure, settings)
         sol, ms = _timed(fn, P, x0, mult, sol.penalty, repeats=repeats)
         warm_ms.append(ms)
         warm_conv.append(float(np.mean(np.asarray(sol.status) == solve.CONVERGED)))
@@ -268,9 +273,7 @@ def _fleet_cases(kind, M, radius_m, seed, steps, reps, max_neighbors=0, setup=No
         pos, vel, acc = (np.asarray(a) for a in tr.state_at(jnp.full(tr.batch_shape, DT)))
         P, mult = nlps(pos, vel, acc, sol)
         x0 = ws(tr, P)
-        # warm starts, marked as the planner marks them (SolverSettings.warm_convex_step)
-        fn = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu,
-                                                    warm=True)
+        fn = lambda P, x0, m, mu: _warm(P, x0, m, mu, structure, settings)
         mu = sol.penalty
         sol, ms = _timed(fn, P, x0, mult, mu, repeats=reps)
         cases.append(dict(P=P, x0=x0, sol=jax.device_get(sol), ms=ms, mult=mult, mu=mu))
@@ -281,7 +284,7 @@ def _retime(cases, structure, settings) -> list[float]:
     """Ms of one call (after one untimed) of each of :func:`_fleet_cases`'s cases again,
     as it timed them (the cold one with its initial guesses, the warm ones from their
     warm starts): another round of the same timings, taken later in the run."""
-    warm = lambda P, x0, m, mu: solve.solve_batch(P, x0, structure, settings, m, mu, warm=True)
+    warm = lambda P, x0, m, mu: _warm(P, x0, m, mu, structure, settings)
     return [_timed(lambda P: _cold(P, structure, settings), c["P"], repeats=1)[1]
             if "mult" not in c else _timed(warm, c["P"], c["x0"], c["mult"], c["mu"],
                                            repeats=1)[1] for c in cases]
