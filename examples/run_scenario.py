@@ -4,7 +4,8 @@ Shows: building a Config (from a TOML file, or a tiny built-in 3-robot scenario)
 running it closed loop (jaxplan.experiment.run: every robot replans at the replan rate
 and flies its plan), reading the metrics (success, collisions, separation, makespan,
 each robot's time to goal) and optionally writing the run directory
-(config.toml, metrics.json, trajectories.npz, figures/) with jaxplan.results.
+(config.toml, metrics.json, trajectories.npz) with jaxplan.files and its figures/ with
+jaxplan.plots.
 
 Run:  .venv/bin/python examples/run_scenario.py [CONFIG.toml] [--out RUN_DIR]
       e.g. .venv/bin/python examples/run_scenario.py experiments/paper/six_neos.toml
@@ -17,7 +18,8 @@ from pathlib import Path
 import jaxplan  # noqa: F401  (importing jaxplan turns on float64 in JAX)
 from jaxplan.config import load_config, parse_config
 from jaxplan.experiment import run
-from jaxplan.results import write_run
+from jaxplan.files import write_run
+from jaxplan.plots import plot_run
 
 # Two robots swapping places head-on and a third crossing their path (the test suite's
 # tiny scenario): runs in a few seconds after compiling.
@@ -49,7 +51,9 @@ def main(argv=None):
               f"path {r['path_length_m']:.2f} m, max speed {r['max_speed']:.2f} m/s")
 
     if args.out:
-        out = write_run(result, args.out, figures=not args.no_figures)
+        out = write_run(result, args.out)
+        if not args.no_figures:
+            plot_run(out)  # figures/, drawn from the files just written
         print(f"wrote {out}")
     return result
 

@@ -28,8 +28,8 @@ def test_importing_jaxplan_stays_light():
 
 
 def test_public_surfaces():
-    from jaxplan import nlp, solve
+    from jaxplan import files, metrics, nlp, solve
 
-    for pkg in (nlp, solve):
+    for pkg in (nlp, solve, metrics, files):
         for name in pkg.__all__:
             assert getattr(pkg, name).__doc__ or not callable(getattr(pkg, name)), name

@@ -2,12 +2,12 @@
 final name is whole, nothing is left that a reader could take for a result, and running
 the same command again completes the directory.
 
-jaxplan/results.py writes each file to a hidden temporary name and renames it into
-place (jaxplan/fileio.py): config.toml, trajectories.npz, then metrics.json, which marks
-a complete run; the figures last.  Two kills land in the write phase: one as soon as the first entry
-appears in the run directory (config.toml's temporary file: config.toml being written),
-one as soon as the first entry appears in figures/ (the first figure being written).
-A third run completes.
+jaxplan/files/rundir.py writes each file to a hidden temporary name and renames it into
+place (jaxplan/files/durable.py): config.toml, trajectories.npz, then metrics.json, which
+marks a complete run; the figures (jaxplan/plots/) last.  Two kills land in the write
+phase: one as soon as the first entry appears in the run directory (config.toml's
+temporary file: config.toml being written), one as soon as the first entry appears in
+figures/ (the first figure being written).  A third run completes.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def _check_whole(out: Path) -> set[str]:
     # metrics.json marks a complete run: the files written before it are there
     if "metrics.json" in present:
         assert {"config.toml", "trajectories.npz"} <= present, present
-        from jaxplan.results import load_run
+        from jaxplan.files import load_run
 
         load_run(out, complete=True)
     return present

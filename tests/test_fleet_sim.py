@@ -191,7 +191,7 @@ def test_world_contacts_match_c_engine(sim):
     metrics count robot 0 in the sphere and robot 1 on the floor, nothing for robot 2."""
     from types import SimpleNamespace
 
-    from jaxplan.experiment import SIM_WORLD_KEYS, sim_metrics, sim_world_report
+    from jaxplan.metrics.report import SIM_WORLD_KEYS, sim_metrics, sim_world_report
 
     model, state = sim
     plans = min_jerk(START, WORLD_GOAL)

@@ -12,13 +12,13 @@ import pytest
 from PIL import Image
 
 import jaxplan  # noqa: F401
-from jaxplan import media, plots
+from jaxplan import plots
+from jaxplan.files import load_run, media
 from jaxplan.metrics import sample_pieces
 from jaxplan.plots.animation import animate, frame_times
 from jaxplan.plots.run import _pair_minima, _plot_clearance, _plot_top_view, _plot_trajectories
 from jaxplan.plots.scene import clearances
-from jaxplan.results import load_run
-from jaxplan.sweep_csv import best_setting
+from jaxplan.sweep import best_setting
 from jaxplan.world import World, world_arrays
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

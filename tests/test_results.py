@@ -3,7 +3,7 @@
 import os
 import stat
 
-from jaxplan.fileio import atomic_write_text
+from jaxplan.files import atomic_write_text
 
 
 def test_atomic_write_permissions_and_stale_temporaries(tmp_path):

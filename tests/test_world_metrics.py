@@ -1,4 +1,4 @@
-"""Exact clearance to the world (jaxplan.world_metrics) against dense sampling and a
+"""Exact clearance to the world (jaxplan.metrics.clearance) against dense sampling and a
 refined minimum, on random and constructed (grazing, starting-inside) pieces; the
 metrics.json keys on the tiny run."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
+from jaxplan.metrics.clearance import face_names, world_clearance, world_report
 from jaxplan.world import BOX, CYLINDER, SPHERE, World
-from jaxplan.world_metrics import face_names, world_clearance, world_report
 
 GRID = 4001  # dense samples per piece
 
@@ -329,9 +329,9 @@ def test_metrics_json_world_keys_on_the_tiny_run(tiny_run):
     """The tiny run flies over the ground (its default world): no contact; the same executed
     pieces in a world with a sphere on robot 2's straight line: a contact, and no
     success."""
-    from jaxplan.experiment import compute_metrics
-    from jaxplan.sweep_batch import SweepPoint, _ReachState, csv_row
-    from jaxplan.sweep_csv import COLUMNS
+    from jaxplan.metrics.report import compute_metrics
+    from jaxplan.sweep import COLUMNS, SweepPoint, csv_row
+    from jaxplan.sweep.batch import _ReachState
 
     m = tiny_run.metrics
     assert m["obstacle_collisions"] == 0 and m["min_obstacle_clearance_m"] is None

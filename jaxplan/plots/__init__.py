@@ -10,10 +10,10 @@ Modules: :mod:`~jaxplan.plots.run` (the static run figures),
 :mod:`~jaxplan.plots.scene` (the world: obstacles, faces, clearances),
 :mod:`~jaxplan.plots.tune` (a tune directory's objective, importance, Pareto front),
 :mod:`~jaxplan.plots.style` (sizes, style, colours, saving).  The data come from
-:func:`jaxplan.results.load_run` (a run directory, validated) and
-:mod:`jaxplan.sweep_csv` (sweep.csv, its grid and best setting); the animation's frames
-are encoded by :mod:`jaxplan.media`; every file is written atomically
-(:mod:`jaxplan.fileio`).  Everything is drawn on :class:`matplotlib.figure.Figure`
+:func:`jaxplan.files.load_run` (a run directory, validated) and
+:mod:`jaxplan.sweep.table` (sweep.csv, its grid and best setting); the animation's frames
+are encoded by :mod:`jaxplan.files.media`; every file is written atomically
+(:mod:`jaxplan.files.durable`).  Everything is drawn on :class:`matplotlib.figure.Figure`
 objects with the Agg canvas; pyplot is never imported, the global backend is never
 switched, and the style is applied inside ``matplotlib.rc_context`` only, so importing
 or calling this module leaves no global matplotlib state behind.
@@ -44,7 +44,7 @@ Run figures (``run_dir/figures/``), sizes in pixels:
 Sweep figures (``sweep_dir/figures/``): ``success_rate.png``, ``min_separation.png``,
 ``makespan.png``; one panel per scenario group ("all scenarios", then each scenario when
 there are several), 460 x 400 pixels per panel; the best setting
-(:func:`jaxplan.sweep_csv.best_setting`) is outlined on every panel.
+(:func:`jaxplan.sweep.table.best_setting`) is outlined on every panel.
 
 Bad input (a missing file or key, a wrong shape, non-finite numbers, an unreadable CSV
 cell) raises ``ValueError("<file>: <key>: <problem>")`` before anything is drawn.

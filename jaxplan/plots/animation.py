@@ -1,5 +1,5 @@
 """The animation of a run directory: the fleet moving, markers scaled to the collision
-radius, with trails; frames drawn here, encoded by :mod:`jaxplan.media`."""
+radius, with trails; frames drawn here, encoded by :mod:`jaxplan.files.media`."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import matplotlib
 import numpy as np
 from matplotlib.collections import LineCollection
 
-from jaxplan import media
+from jaxplan.files import RunData, media
 from jaxplan.plots.scene import draw_world_2d, draw_world_3d
 from jaxplan.plots.style import (
     ANIM_DPI,
@@ -22,7 +22,6 @@ from jaxplan.plots.style import (
     new_figure,
     robot_colors,
 )
-from jaxplan.results import RunData
 
 FRAME_MS = 60  # GIF frame delay (a multiple of 10 ms, ~16.7 fps)
 TRAIL_S = 2.0  # s of trail behind each robot in the animation
@@ -76,7 +75,8 @@ def animate(data: RunData, out: Path, *, mp4: bool, max_frames: int) -> Path:
     once; every frame restores it and draws three artists on top: the trails (one
     LineCollection), the bodies (one EllipseCollection, discs of the collision radius,
     back to front) and the clock.  Positions are projected to pixels once, up front
-    (orthographic 3-D view, equal aspect): ~5-10 ms per 640 x 480 frame."""
+    (orthographic 3-D view, equal aspect), so that a frame costs only its three
+    artists."""
     if int(max_frames) < 2:
         raise ValueError(f"max_frames must be >= 2; got {max_frames}")
     use_mp4 = _use_mp4(mp4)

@@ -13,6 +13,7 @@ from matplotlib import colors as mcolors
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
+from jaxplan.files import RunData, load_run
 from jaxplan.plots.scene import (
     OBSTACLE_EDGE,
     OBSTACLE_FACE,
@@ -31,7 +32,6 @@ from jaxplan.plots.style import (
     robot_colors,
     save_png,
 )
-from jaxplan.results import RunData, load_run
 from jaxplan.world import face_names
 
 MAX_PAIR_LINES = 45  # draw every pair's curve up to this many pairs, else the envelope
@@ -43,7 +43,7 @@ def plot_run(run_dir, *, animation=True, mp4=False, max_frames=150) -> list[Path
     Args:
         run_dir: a run directory (docs/DESIGN.md): trajectories.npz (required), metrics.json
             and config.toml (optional: title numbers and limits).
-        animation: also write the animation (the slowest part: ~2-6 s).
+        animation: also write the animation (the slowest part).
         mp4: write animation.mp4 instead of animation.gif when ffmpeg is on PATH (a
             warning and the GIF otherwise).
         max_frames: the animation's frame bound (>= 2).

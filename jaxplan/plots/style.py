@@ -10,9 +10,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from jaxplan.fileio import atomic_write
+from jaxplan.files import RunData, atomic_write
 from jaxplan.plots.scene import world_extent
-from jaxplan.results import RunData
 
 DPI = 120
 ANIM_DPI = 100

@@ -1,5 +1,5 @@
 """Heatmaps of a sweep directory over its (q_obs, q_lim) grid (:func:`plot_sweep`); the
-numbers come from :mod:`jaxplan.sweep_csv`."""
+numbers come from :mod:`jaxplan.sweep.table`."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.patches import Rectangle
 
 from jaxplan.plots.style import FIGSIZE, STYLE, new_figure, save_png
-from jaxplan.sweep_csv import Grid, best_index, best_summary, grid, read_sweep_rows
+from jaxplan.sweep.table import Grid, best_index, best_summary, grid, read_sweep_rows
 
 
 def _log_edges(v):
@@ -58,7 +58,7 @@ def plot_sweep(sweep_dir) -> list[Path]:
     makespan.png (mean over successful runs; grey where none succeeded): one panel for
     all scenarios together, plus one per scenario when there are several.  Axes are
     log10 when every weight is positive.  The best setting
-    (:func:`jaxplan.sweep_csv.best_setting`) is outlined in black on every panel.
+    (:func:`jaxplan.sweep.table.best_setting`) is outlined in black on every panel.
 
     Returns: the three paths.
     """

@@ -9,9 +9,10 @@ An atomic write fills a temporary file in the same folder (``.<name>.<random><su
 flushes it to disk and renames it over ``path``, so a crash (even SIGKILL) never leaves a
 half-written file under a final name; temporaries left by an earlier killed write of the
 same name are removed first.  The file gets the usual permissions (0666 minus the umask;
-a bare temporary file's are 0600).  Used for the run directory (:mod:`jaxplan.results`),
-the figures (:mod:`jaxplan.plots`, :mod:`jaxplan.media`) and sweep.csv / config.toml of
-a sweep directory (:mod:`jaxplan.sweep`); docs/DESIGN.md "A run directory".
+a bare temporary file's are 0600).  Used for the run directory
+(:mod:`jaxplan.files.rundir`), the figures (:mod:`jaxplan.plots`,
+:mod:`jaxplan.files.media`) and sweep.csv / config.toml of a sweep directory
+(:mod:`jaxplan.sweep`); docs/DESIGN.md "A run directory".
 
 Appends take the file's lock (:func:`file_lock`, the ``filelock`` library: an ``flock``
 on ``.<name>.lock`` in the same folder, which stays there), so that processes appending
@@ -96,7 +97,7 @@ def file_lock(path) -> FileLock:
 def append_lines(path, text: str) -> None:
     """Append complete lines to ``path`` (created 0644 minus the umask) in one write,
     then fsync, holding :func:`file_lock`: a kill leaves at most a partial trailing line,
-    which a reader drops (:func:`jaxplan.sweep_csv.read_sweep_csv`)."""
+    which a reader drops (:func:`jaxplan.sweep.table.read_sweep_csv`)."""
     data = text.encode("utf-8")
     with file_lock(path):
         fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)

@@ -18,7 +18,7 @@ points of the piece, evaluated from the ORIGINAL coefficients (Horner in t - seg
 then the exact distance, no smoothing), so the reported value is always one the
 trajectory really takes (never below the true minimum by more than round-off) and, the
 minimiser being a candidate, equal to it up to the accuracy of the roots.  Roots come
-from the machinery of the pairwise separation (:mod:`jaxplan.metrics`: each piece
+from the machinery of the pairwise separation (:mod:`jaxplan.metrics.pieces`: each piece
 re-expressed in u in [0, 1], batched companion eigenvalues, the real part of every
 eigenvalue clipped to [0, 1] a candidate, Bernstein exclusion), each root polished by
 two Newton steps on its own polynomial (polished copies added, not substituted).
@@ -54,17 +54,14 @@ Speed.  Only the (piece, obstacle) and (piece, face) pairs that can hold their (
 obstacle) or (robot, face) minimum are solved: a lower bound per pair (the distance from
 the piece's Bernstein bounding box, which encloses the piece, to the obstacle or the
 plane) is compared with an upper bound per robot pair (the smallest clearance at the
-end points of that robot's pieces), as :mod:`jaxplan.metrics` prunes robot pairs.  For
-obstacles a second pass then solves, per (robot, obstacle), the piece of the smallest
-lower bound first; its exact minimum is attained, so the other pieces are solved only
-where their lower bound lies below it (by more than 1e-13 x the piece's coefficient
-size, far above the round-off of the bounds: a robot at rest beside an obstacle is one
-piece, not all of them).  Duplicate candidates are dropped before the evaluation.
-Measured on one core of a shared 2-core machine, 20 robots x 240 quintic pieces (30 s at
-8 Hz), 20 obstacles (spheres, boxes, cylinders), a floor and a ceiling: wavy paths
-through a 24 m field 0.22-0.36 s per call; every robot at rest beside an obstacle for
-the whole run 0.18-0.19 s; every robot wobbling by millimetres beside one (nothing
-prunes) 0.9-1.6 s.
+end points of that robot's pieces), as :mod:`jaxplan.metrics.separation` prunes robot
+pairs.  For obstacles a second pass then solves, per (robot, obstacle), the piece of the
+smallest lower bound first; its exact minimum is attained, so the other pieces are
+solved only where their lower bound lies below it (by more than 1e-13 x the piece's
+coefficient size, far above the round-off of the bounds: a robot at rest beside an
+obstacle is one piece, not all of them).  Duplicate candidates are dropped before the
+evaluation.
+Cost: docs/SOLVER.md, "Metrics".
 """
 
 from __future__ import annotations
@@ -74,17 +71,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxplan.metrics import (
-    _CHUNK,
-    _NEWTON_STEPS,
-    _bernstein,
-    _check_pieces,
-    _deriv,
-    _dot_conv,
-    _horner,
-    _stationary_candidates,
-    _to_unit,
-    _unit_roots,
+from jaxplan.metrics.pieces import (
+    CHUNK,
+    NEWTON_STEPS,
+    bernstein,
+    check_pieces,
+    deriv,
+    dot_conv,
+    horner,
+    stationary_candidates,
+    to_unit,
+    unit_roots,
 )
 from jaxplan.world import BOX, CYLINDER, SPHERE, World
 
@@ -151,12 +148,12 @@ def _sd_kind(code, center, half, radius, p):
 
 def _hv(g, u):
     """Scalar polynomials g (B, L) at u (B, C) -> (B, C)."""
-    return _horner(g[:, None, :], u)[..., 0]
+    return horner(g[:, None, :], u)[..., 0]
 
 
 def _mul(a, b):
     """Products of scalar polynomials a (B, La), b (B, Lb) -> (B, La+Lb-1)."""
-    return _dot_conv(a[:, None, :], b[:, None, :])
+    return dot_conv(a[:, None, :], b[:, None, :])
 
 
 def _add(a, b):
@@ -170,14 +167,14 @@ def _add(a, b):
 
 def _roots(g):
     """Candidate roots in [0, 1] of scalar polynomials g (B, L): every (clipped) real part
-    of a companion eigenvalue (:func:`jaxplan.metrics._unit_roots`) and its copies
+    of a companion eigenvalue (:func:`jaxplan.metrics.pieces.unit_roots`) and its copies
     after one and two Newton steps on g -> (B, (L-1) x 3)."""
-    u = _unit_roots(g)
+    u = unit_roots(g)
     if u.shape[1] == 0:
         return u
-    dg = _deriv(g)
+    dg = deriv(g)
     out = [u]
-    for _ in range(_NEWTON_STEPS):
+    for _ in range(NEWTON_STEPS):
         f, df = _hv(g, u), _hv(dg, u)
         with np.errstate(divide="ignore", invalid="ignore"):
             step = np.where(df != 0.0, f / df, 0.0)
@@ -241,11 +238,11 @@ def _box_candidates(d, h):
     planes[:, :N, 0] -= h
     planes[:, N:, 0] += h
     cut = _roots(planes.reshape(B * 2 * N, L)).reshape(B, -1)
-    dd = _deriv(d)
+    dd = deriv(d)
     stat = _roots(dd.reshape(B * N, -1)).reshape(B, -1)
     parts = zero_one + [cut, stat]
     mid, live = _cuts(cut)
-    x = _horner(d, mid)  # (B, J, N)
+    x = horner(d, mid)  # (B, J, N)
     side = np.where(x > h[:, None, :], 1, np.where(x < -h[:, None, :], -1, 0))  # (B, J, N)
     code = np.sum((side + 1) * 3 ** np.arange(N), axis=-1)  # (B, J)
     inside_code = int(np.sum(3 ** np.arange(N)))
@@ -257,7 +254,7 @@ def _box_candidates(d, h):
         e = d[r].copy()
         e[:, :, 0] -= s * h[r]
         e = np.where(s[:, :, None] != 0, e, 0.0)
-        return _dot_conv(e, dd[r])
+        return dot_conv(e, dd[r])
 
     _scatter(B, *_group_roots(rows[out_sel], code[out_sel], outside_poly), parts)
     ins = np.nonzero(np.any(live & (code == inside_code), axis=1))[0]
@@ -281,10 +278,10 @@ def _cylinder_candidates(d, R, H):
     """Candidate u (B, C) of the minimum of the 3-D cylinder distance; d (B, 3, L) the
     piece minus the centre in u, R (B,) radius, H (B,) half height (module doc)."""
     B = d.shape[0]
-    P = _dot_conv(d[:, :2], d[:, :2])  # (B, 2L-1): rho^2
-    Pd = _deriv(P)
+    P = dot_conv(d[:, :2], d[:, :2])  # (B, 2L-1): rho^2
+    Pd = deriv(P)
     z = d[:, 2]
-    zd = _deriv(z)
+    zd = deriv(z)
     ring = P.copy()
     ring[:, 0] -= R**2
     top, bot = z.copy(), z.copy()
@@ -311,7 +308,7 @@ def _cylinder_candidates(d, R, H):
 
     def rim_poly(r, sg):  # rim: P (P' + 2 w w')^2 - R^2 P'^2
         w = w_of(r, sg)
-        a = _add(Pd[r], 2.0 * _mul(w, _deriv(w)))
+        a = _add(Pd[r], 2.0 * _mul(w, deriv(w)))
         return _add(_mul(P[r], _mul(a, a)), -(R[r] ** 2)[:, None] * _mul(Pd[r], Pd[r]))
 
     ins = live & ~out & (s == 0)
@@ -386,7 +383,7 @@ def world_clearance(seg_robot, seg_t0, seg_t1, seg_coeffs, radius, world: World,
     radius = np.asarray(radius, np.float64)
     if num_robots is None:
         num_robots = radius.shape[0]
-    r, t0, t1, c, M, _ = _check_pieces(seg_robot, seg_t0, seg_t1, seg_coeffs, num_robots)
+    r, t0, t1, c, M, _ = check_pieces(seg_robot, seg_t0, seg_t1, seg_coeffs, num_robots)
     N = c.shape[1]
     if radius.shape != (M,):
         raise ValueError(f"radius must be (M,) = ({M},); got {radius.shape}")
@@ -401,8 +398,8 @@ def world_clearance(seg_robot, seg_t0, seg_t1, seg_coeffs, radius, world: World,
     if S == 0:
         return res
     h = t1 - t0
-    cu = _to_unit(c, np.zeros(S), h)  # (S, N, L) in u
-    bern = cu @ _bernstein(cu.shape[2] - 1)
+    cu = to_unit(c, np.zeros(S), h)  # (S, N, L) in u
+    bern = cu @ bernstein(cu.shape[2] - 1)
     lo, hi = bern.min(axis=-1), bern.max(axis=-1)  # enclosing box of each piece
     scale = np.abs(cu).sum(axis=(1, 2))
     ends = np.stack([c[:, :, 0], cu.sum(axis=2)], axis=1)  # (S, 2, N): x(t0), x(t1)
@@ -457,8 +454,8 @@ def _obstacle_rows(ps, ks, t0, t1, c, cu, world):
     N = c.shape[1]
     kind = world.kind
     vals, times = [np.zeros(0)], [np.zeros(0)]
-    for start in range(0, ps.size, _CHUNK):
-        p, k = ps[start:start + _CHUNK], ks[start:start + _CHUNK]
+    for start in range(0, ps.size, CHUNK):
+        p, k = ps[start:start + CHUNK], ks[start:start + CHUNK]
         d = cu[p].copy()
         d[:, :, 0] -= world.center[k]
         val, tm = np.empty(p.size), np.empty(p.size)
@@ -472,10 +469,10 @@ def _obstacle_rows(ps, ks, t0, t1, c, cu, world):
             elif code == CYLINDER and N == 3:
                 u = _cylinder_candidates(d[sel], world.radius[kk], world.half[kk, 2])
             else:
-                u = _stationary_candidates(d[sel])[0]
+                u = stationary_candidates(d[sel])[0]
             pp = p[sel]
             u = _compact(u)
-            x = _horner(c[pp], u * (t1 - t0)[pp][:, None])
+            x = horner(c[pp], u * (t1 - t0)[pp][:, None])
             sd = _sd_kind(code, world.center[kk], world.half[kk], world.radius[kk], x)
             j = np.argmin(sd, axis=1)
             rows = np.arange(sel.size)
@@ -500,9 +497,9 @@ def _faces(res, r, t0, t1, c, cu, lo, hi, scale, ends, radius, bounds, finite):
         return
     # the minimum of a polynomial coordinate: at 0, 1 or a root of its derivative
     g = cu[ps, axis[fs]]  # (B, L)
-    u = np.concatenate([np.zeros((ps.size, 1)), np.ones((ps.size, 1)), _roots(_deriv(g))],
+    u = np.concatenate([np.zeros((ps.size, 1)), np.ones((ps.size, 1)), _roots(deriv(g))],
                        axis=1)
-    x = _horner(c[ps, axis[fs]][:, None, :], u * (t1 - t0)[ps][:, None])[..., 0]
+    x = horner(c[ps, axis[fs]][:, None, :], u * (t1 - t0)[ps][:, None])[..., 0]
     cl = sign[fs][:, None] * (x - b[fs][:, None])
     j = np.argmin(cl, axis=1)
     rows = np.arange(ps.size)

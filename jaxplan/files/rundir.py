@@ -1,15 +1,16 @@
 """The run directory: writing it and reading it back (docs/DESIGN.md "A run directory").
 
-    write_run(result, out_dir, *, figures=True) -> Path
+    write_run(result, out_dir) -> Path
     load_run(run_dir, *, complete=False) -> RunData      read and validated
 
-Files: config.toml (the fully resolved config), metrics.json, trajectories.npz
-(loadable with allow_pickle=False) and figures/.  Every file is written atomically
-(:mod:`jaxplan.fileio`), so a crash never leaves a half-written file under a final
-name.  metrics.json is written after config.toml and trajectories.npz and marks a
-complete run; the figures come last and can always be redrawn from those files with
-``jaxplan plot RUN_DIR`` (:mod:`jaxplan.plots`, which reads the directory with
-:func:`load_run`).
+Files: config.toml (the fully resolved config), metrics.json and trajectories.npz
+(loadable with allow_pickle=False).  Every file is written atomically
+(:mod:`jaxplan.files.durable`), so a crash never leaves a half-written file under a
+final name.  metrics.json is written after config.toml and trajectories.npz and marks a
+complete run.  The figures (figures/) are drawn from those files by
+:func:`jaxplan.plots.plot_run`, which reads the directory with :func:`load_run`: after
+:func:`write_run` (``jaxplan run``), or again with ``jaxplan plot RUN_DIR``; writing a
+run's files never imports the plots.
 
 Bad input (a missing file or key, a wrong shape, non-finite numbers) makes
 :func:`load_run` raise ``ValueError("<file>: <key>: <problem>")``.
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.fileio import atomic_write_bytes, atomic_write_text
+from jaxplan.files.durable import atomic_write_bytes, atomic_write_text
 from jaxplan.world import World, world_from_arrays
 
 __all__ = ["write_run", "load_run", "RunData", "REQUIRED_NPZ"]
@@ -57,8 +58,11 @@ def _clean(obj):
     return obj
 
 
-def write_run(result, out_dir, *, figures: bool = True) -> Path:
-    """Write a RunResult (jaxplan.experiment) as a run directory; returns its path."""
+def write_run(result, out_dir) -> Path:
+    """Write a RunResult (jaxplan.experiment) as a run directory: config.toml,
+    trajectories.npz, then metrics.json (a previous run's metrics.json is removed first,
+    so that the directory is complete only once all three are written); returns its
+    path.  The figures are :func:`jaxplan.plots.plot_run`'s."""
     from jaxplan.config import config_to_toml
 
     out = Path(out_dir)
@@ -72,10 +76,6 @@ def write_run(result, out_dir, *, figures: bool = True) -> Path:
     atomic_write_bytes(out / "trajectories.npz", buf.getvalue())
     atomic_write_text(out / "metrics.json",
                       json.dumps(_clean(result.metrics), indent=2, allow_nan=False) + "\n")
-    if figures:
-        from jaxplan.plots import plot_run
-
-        plot_run(out)
     return out
 
 

@@ -1,4 +1,5 @@
-"""Encoding animation frames as GIF or MP4 files, written atomically (:mod:`jaxplan.fileio`).
+"""Encoding animation frames as GIF or MP4 files, written atomically
+(:mod:`jaxplan.files.durable`).
 
     write_gif(frames, path, frame_ms) -> path          Pillow, one shared palette
     write_mp4(frames, size, path, frame_ms) -> path    ffmpeg (H.264, yuv420p)
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.fileio import atomic_write
+from jaxplan.files.durable import atomic_write
 
 __all__ = ["write_gif", "write_mp4", "ffmpeg_available"]
 
