@@ -67,7 +67,7 @@ def test_registry_scenarios_label_rows():
 
 
 def _write(path: Path, rows, partial: str = ""):
-    from jaxplan.sweep_csv import csv_text
+    from jaxplan.sweep import csv_text
 
     path.write_text(csv_text(rows, header=True) + partial)
 
@@ -81,7 +81,7 @@ def _row(qo, ql, seed, **kw):
 
 
 def test_csv_reader_drops_partial_malformed_and_duplicate_lines(tmp_path):
-    from jaxplan.sweep_csv import COLUMNS, read_sweep_csv, row_key
+    from jaxplan.sweep import COLUMNS, read_sweep_csv, row_key
 
     p = tmp_path / "sweep.csv"
     rows = [_row(1.0, 0.1, 0), _row(1.0, 0.1, 1), _row(1.0, 0.1, 0, success="0")]
@@ -102,7 +102,7 @@ def test_csv_reader_drops_partial_malformed_and_duplicate_lines(tmp_path):
 
 
 def test_csv_reader_refuses_foreign_columns(tmp_path):
-    from jaxplan.sweep_csv import SweepError, read_sweep_csv
+    from jaxplan.sweep import SweepError, read_sweep_csv
 
     p = tmp_path / "sweep.csv"
     p.write_text("a,b\n1,2\n")
@@ -115,7 +115,7 @@ def test_csv_reader_refuses_foreign_columns(tmp_path):
 def test_csv_reader_reads_an_older_version_only_when_asked(tmp_path):
     # an earlier version wrote the leading columns only: a finished sweep is read (the
     # later columns empty), a resume refuses it
-    from jaxplan.sweep_csv import COLUMNS, SweepError, csv_text, read_sweep_csv
+    from jaxplan.sweep import COLUMNS, SweepError, csv_text, read_sweep_csv
 
     old = COLUMNS[:-2]
     row = {c: "1" for c in COLUMNS} | {"q_obs": "1.0", "q_lim": "2.0", "scenario": "s",
@@ -136,8 +136,8 @@ def test_pad_robots_parks_masked_robots_far_away():
     import jax
 
     from jaxplan.config import build_scenario
-    from jaxplan.experiment import fleet_params, task_of
-    from jaxplan.sweep_batch import pad_robots as _pad_robots
+    from jaxplan.run_setup import fleet_params, task_of
+    from jaxplan.sweep import pad_robots as _pad_robots
 
     cfg = _config()
     sc = build_scenario(cfg)
@@ -155,7 +155,8 @@ def test_pad_robots_parks_masked_robots_far_away():
 
 
 def test_a_directory_made_with_another_config_is_refused(tmp_path):
-    from jaxplan.sweep import SweepError, _guard_config
+    from jaxplan.sweep import SweepError
+    from jaxplan.sweep import guard_config as _guard_config
 
     _guard_config(tmp_path, _config())
     _guard_config(tmp_path, _config(SWEEP_TOML.replace("seeds = [0, 1]", "seeds = [0, 1, 2]")))
@@ -170,26 +171,27 @@ def test_a_directory_made_by_another_behaviour_revision_is_refused(tmp_path):
     from jaxplan.config import config_to_toml
 
     cfg = _config()
-    sweep._guard_config(tmp_path, cfg)
+    sweep.guard_config(tmp_path, cfg)
     path = tmp_path / "config.toml"
     text = path.read_text()
     assert text.startswith(f"# jaxplan behaviour revision: {sweep.BEHAVIOUR_REVISION}\n")
     assert parse_config(tomllib.loads(text), source="c.toml") == parse_config(
         tomllib.loads(config_to_toml(cfg)), source="c.toml")  # still the config
-    sweep._guard_config(tmp_path, cfg)  # the same revision: resumes
+    sweep.guard_config(tmp_path, cfg)  # the same revision: resumes
     for other in (config_to_toml(cfg),
                   text.replace(f"revision: {sweep.BEHAVIOUR_REVISION}",
                                f"revision: {sweep.BEHAVIOUR_REVISION + 1}")):
         path.write_text(other)
         with pytest.raises(sweep.SweepError, match="behaviour revision"):
-            sweep._guard_config(tmp_path, cfg)
+            sweep.guard_config(tmp_path, cfg)
 
 
 def test_an_older_config_without_a_newer_default_key_still_resumes(tmp_path):
     import tomllib
 
     from jaxplan.config import config_to_toml
-    from jaxplan.sweep import SweepError, _guard_config, stamped
+    from jaxplan.sweep import SweepError, stamped
+    from jaxplan.sweep import guard_config as _guard_config
 
     cfg = _config()
     doc = tomllib.loads(config_to_toml(cfg))
@@ -366,7 +368,7 @@ def test_sigkill_then_resume_gives_the_same_rows(sweep_env, uninterrupted):
 
 @pytest.mark.slow  # a second compilation, split over two devices: `make test-slow`
 def test_split_over_two_devices_runs_every_row_once(sweep_env, uninterrupted):
-    """Each batch of 2 runs split over two CPU devices (sweep_batch.cpu_shards): one
+    """Each batch of 2 runs split over two CPU devices (jaxplan.sweep.batch.cpu_shards): one
     compilation, every (weights, seed) row once, as the one-device sweep.  The rows'
     floats are not compared: XLA vectorizes one lane and two differently, and the closed
     loop grows the last-bit differences (measured: a min d/rho of 1.314 split, 1.201 on
@@ -418,8 +420,13 @@ def test_the_batch_structure_forms_the_kinds_the_grid_needs():
     worlds (PLANE always: workspace faces, padding); without scenarios, every kind; the
     coast rows always (a rest-ended grid too).  A runner keeps its structure while it
     covers a batch and makes a larger one (never a smaller) when a batch needs more."""
-    from jaxplan.sweep import sweep_points
-    from jaxplan.sweep_batch import BatchRunner, build_scenarios, grid_kinds, structure_for
+    from jaxplan.sweep import (
+        BatchRunner,
+        build_scenarios,
+        grid_kinds,
+        structure_for,
+        sweep_points,
+    )
     from jaxplan.world import ALL_KINDS, PLANE, row_kinds, static_rows
 
     sweep = SWEEP_TOML[SWEEP_TOML.index("[sweep]"):].replace("seeds = [0, 1]", "seeds = [0]")

@@ -97,7 +97,7 @@ def test_ray_engine_without_ray_says_how_to_install_it(tmp_path, monkeypatch):
 
 
 def _row(point, success="1", sep="1.5"):
-    from jaxplan.sweep_csv import make_key
+    from jaxplan.sweep import make_key
 
     qo, ql, sc, seed = make_key(point.q_obs, point.q_lim, point.scenario, point.seed)
     return {"q_obs": qo, "q_lim": ql, "scenario": sc, "seed": seed, "success": success,
@@ -105,8 +105,14 @@ def _row(point, success="1", sep="1.5"):
 
 
 def test_merge_of_made_up_shards(tmp_path):
-    from jaxplan.sweep import SweepError, merge_shards, sweep_points
-    from jaxplan.sweep_csv import csv_text, read_sweep_csv, row_key
+    from jaxplan.sweep import (
+        SweepError,
+        csv_text,
+        merge_shards,
+        read_sweep_csv,
+        row_key,
+        sweep_points,
+    )
 
     cfg = _config()
     pts = sweep_points(cfg)
@@ -134,9 +140,9 @@ def test_merge_of_made_up_shards(tmp_path):
 
 
 def test_appends_take_the_lock_and_never_repeat_a_key(tmp_path):
-    from jaxplan.fileio import append_lines, file_lock
-    from jaxplan.sweep import _Writer, sweep_points
-    from jaxplan.sweep_csv import csv_text, read_sweep_csv
+    from jaxplan.files import append_lines, file_lock
+    from jaxplan.sweep import csv_text, read_sweep_csv, sweep_points
+    from jaxplan.sweep.engines import _Writer
 
     path = tmp_path / "sweep.csv"
     path.write_text(csv_text([], header=True))
@@ -157,15 +163,15 @@ def test_appends_take_the_lock_and_never_repeat_a_key(tmp_path):
 
 def test_shards_starting_together_share_config_toml(tmp_path):
     """Shards of one sweep check and write the directory's config.toml at the same time
-    (here threads; _guard_config takes the file's lock)."""
-    from jaxplan.sweep import _guard_config
+    (here threads; guard_config takes the file's lock)."""
+    from jaxplan.sweep import guard_config
 
     cfg, errors = _config(), []
 
     def guard():
         try:
             for _ in range(10):
-                _guard_config(tmp_path, cfg)
+                guard_config(tmp_path, cfg)
         except Exception as e:  # any failure is the finding
             errors.append(e)
 
@@ -249,7 +255,7 @@ def _session(session: int) -> dict[int, str]:
 
 def _busy_workers(session: int) -> list[int]:
     """Pids of the Ray workers running a sweep task in process session ``session``."""
-    from jaxplan.sweep_ray import TASK_NAME
+    from jaxplan.sweep.ray import TASK_NAME
 
     return [pid for pid, title in _session(session).items() if title == f"ray::{TASK_NAME}"]
 

@@ -43,8 +43,9 @@ def _parse(tune_text: str):
     ("q_obs = {low = 5.0, high = 5.0}", "tune.weights.q_obs.high", "must be > low = 5"),
     ("q_lim = {low = 0.0, high = 1.0, log = true}", "tune.weights.q_lim.low",
      "a log range needs low > 0"),
-    ("k_p = {low = 0.0, high = 9.0}", "tune.weights.k_p.low", "must be > 0"),
-    ("q_dynm = {low = 0.0, high = 2.0}", "tune.weights.q_dynm.low", "must be > 0"),
+    ("k_p = {low = 0.0, high = 9.0}", "tune.weights.k_p.low", "must be >= 0.001"),
+    ("q_dynm = {low = 0.0, high = 2.0}", "tune.weights.q_dynm.low", "must be >= 1e-06"),
+    ("q_obs = {low = 1.0, high = 1e7}", "tune.weights.q_obs.high", "must be <= 1e+06"),
     ("q_obs = {low = -1.0, high = 1.0}", "tune.weights.q_obs.low", "must be >= 0"),
     ("safety_margin_m = {low = 0.0, high = 11.0}", "tune.weights.safety_margin_m.high",
      "must be <= 10"),
@@ -151,10 +152,11 @@ def interrupted_and_resumed(tmp_path_factory):
     batch of trials was asked (stored as RUNNING) and before any of it was told (as a
     kill would), then resumed; the resumed run reuses the compiled program."""
     from jaxplan import tune
+    from jaxplan.tune.trials import Runner
 
     out = tmp_path_factory.mktemp("tune") / "out"
     cfg = _parse(TUNE_TABLE)
-    real_run = tune._Runner.run
+    real_run = Runner.run
     calls = []
 
     def run_then_stop(self, runs, on_batch=None):
@@ -164,12 +166,12 @@ def interrupted_and_resumed(tmp_path_factory):
         return real_run(self, runs, on_batch)
 
     first = []
-    tune._Runner.run = run_then_stop
+    Runner.run = run_then_stop
     try:
         with pytest.raises(_Stop):
             tune.run_tune(cfg, out, progress=False, echo=first.append)
     finally:
-        tune._Runner.run = real_run
+        Runner.run = real_run
     at_stop = _states(out / "study.db")
     lines = []
     res = tune.run_tune(cfg, out, progress=False, echo=lines.append)
@@ -318,9 +320,9 @@ def test_sigkill_then_resume_loses_only_the_trials_in_flight(tmp_path):
 
 
 def test_per_run_weights_are_the_traced_ones_only():
-    """sweep_batch's per-run weights replace [planner] settings that are traced inputs
+    """The sweep batch's per-run weights replace [planner] settings that are traced inputs
     of the batch program; anything else (it would change the program) is refused."""
-    from jaxplan.sweep_batch import with_weights
+    from jaxplan.sweep import with_weights
 
     cfg = _parse(TUNE_TABLE)
     w = with_weights(cfg, {"k_t": 3.5, "safety_margin_m": 0.1, "q_dynm": 2.0})

@@ -1,14 +1,14 @@
 """One batch of sweep grid points, run in this process: what both sweep engines run
-(:mod:`jaxplan.sweep` locally, :mod:`jaxplan.sweep_ray` on Ray workers), so that a
+(:mod:`jaxplan.sweep.engines` locally, :mod:`jaxplan.sweep.ray` on Ray workers), so that a
 point's sweep.csv row is the same whatever the engine.
 
-    SweepPoint(q_obs, q_lim, scenario, seed)            one run of the grid; .key
-    scenario_sources(config) -> [ScenarioSource]        the grid's scenarios: label, build(seed)
-    sweep_points(config) -> [SweepPoint]                the whole grid, in run order
-    build_scenarios(config, points) -> {(label, seed): Scenario}
     BatchRunner(config, say).rows(points, built, m_pad, batch, on_compiled=None, *,
                                   weights=None, r_pad=None) -> [row]
     CompileCounter.install(), CompileCounter.get()      compilations of the batch program
+    csv_row(point, metrics, n_waypoints, error) -> row  a run's sweep.csv row
+    pad_robots(fp, task, m_pad), structure_for(config, n_dim, ...), with_weights(config, w)
+
+The points and their built scenarios (``built``) come from :mod:`jaxplan.sweep.points`.
 
 A batch is one call of one compiled program (:func:`jaxplan.rollout.rollout_batch`,
 vmapped over runs) with the weights and every other fleet parameter as traced batched
@@ -28,7 +28,7 @@ q_lim (q_dynm, k_t, k_p, safety_margin_m); they are traced inputs like the point
 and q_lim (the weights, the prediction weight k_t / q_dynm, the radii plus the margin),
 so runs of different weights share one compiled program.
 
-Rows: :data:`jaxplan.sweep_csv.COLUMNS`, from the run's metrics (:func:`csv_row`).
+Rows: :data:`jaxplan.sweep.table.COLUMNS`, from the run's metrics (:func:`csv_row`).
 """
 
 from __future__ import annotations
@@ -44,111 +44,33 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from jaxplan import scenarios
-from jaxplan.config import TUNABLE_WEIGHTS, Config, build_scenario
-from jaxplan.experiment import compute_metrics, fleet_params, stack_trees, structures, task_of
-from jaxplan.guide import guide_enabled
+from jaxplan.config import TUNABLE_WEIGHTS, Config
+from jaxplan.experiment import stack_trees
+from jaxplan.metrics.report import compute_metrics
 from jaxplan.nlp import Weights
+from jaxplan.planner.guide import guide_enabled
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
+from jaxplan.run_setup import fleet_params, structures, task_of
 from jaxplan.scenarios import Scenario
 from jaxplan.solve import shard_lanes
-from jaxplan.sweep_csv import SweepError, make_key
+from jaxplan.sweep.points import SweepPoint
 from jaxplan.timing import KeptPrograms, arg_key, timed
 from jaxplan.world import ALL_KINDS, PLANE, row_kinds, static_rows
 
 __all__ = [
     "BatchRunner",
     "CompileCounter",
-    "ScenarioSource",
-    "SweepPoint",
     "Tally",
-    "build_scenarios",
     "csv_row",
     "grid_kinds",
     "pad_robots",
-    "scenario_sources",
     "structure_for",
-    "sweep_points",
     "with_weights",
 ]
 
 PARK_DISTANCE = 1.0e4  # m: where padding robots are parked
 PARK_SPACING = 10.0  # m between parked padding robots
 PROGRAM = "jaxplan_sweep_batch"  # the batch program's name in JAX's compile events
-
-
-@dataclass(frozen=True)
-class SweepPoint:
-    """One run of the grid: weights, scenario label, seed."""
-
-    q_obs: float
-    q_lim: float
-    scenario: str
-    seed: int
-
-    @property
-    def key(self) -> tuple[str, str, str, str]:
-        return make_key(self.q_obs, self.q_lim, self.scenario, self.seed)
-
-
-# ------------------------------------------------------------------------ scenarios
-
-
-@dataclass(frozen=True)
-class ScenarioSource:
-    """A scenario of the grid: its label (the sweep.csv ``scenario`` column) and
-    ``build(seed) -> Scenario``."""
-
-    label: str
-    build: Callable[[int], Scenario]
-
-
-def scenario_sources(config: Config) -> list[ScenarioSource]:
-    """The grid's scenarios: ``[sweep] scenarios`` empty: the config's own fleet, named
-    by its ``[scenario] kind`` or, with ``[[robots]]``, by the config's name; given:
-    those registry scenarios, built with their defaults and the config's [limits]."""
-    sw = config.sweep
-    if not sw.scenarios:
-        if config.scenario is not None and not config.robots:
-            label = config.scenario.kind
-        else:
-            label = config.name
-        return [ScenarioSource(
-            label, lambda s: build_scenario(dataclasses.replace(config, seed=int(s))))]
-    lim = config.limits
-
-    def builder(name):
-        def build(seed):
-            return scenarios.build(name, seed=int(seed)).with_limits(
-                lim.v_max, lim.a_max, lim.j_max)
-        return build
-
-    return [ScenarioSource(n, builder(n)) for n in dict.fromkeys(sw.scenarios)]
-
-
-def sweep_points(config: Config) -> list[SweepPoint]:
-    """The whole grid of a config's [sweep], in run order: scenario, q_obs, q_lim, seed."""
-    sw = config.sweep
-    return [SweepPoint(float(qo), float(ql), src.label, int(s))
-            for src in scenario_sources(config)
-            for qo in dict.fromkeys(sw.q_obs)
-            for ql in dict.fromkeys(sw.q_lim)
-            for s in dict.fromkeys(sw.seeds)]
-
-
-def build_scenarios(config: Config, points) -> dict[tuple[str, int], Scenario]:
-    """Every (scenario label, seed) of the points, built once.  Raises SweepError
-    naming the scenario and seed that cannot be built."""
-    sources = {s.label: s for s in scenario_sources(config)}
-    built: dict[tuple[str, int], Scenario] = {}
-    for p in points:
-        if (p.scenario, p.seed) not in built:
-            try:
-                built[(p.scenario, p.seed)] = sources[p.scenario].build(p.seed)
-            except (scenarios.ScenarioError, ValueError) as e:
-                raise SweepError(f"{config.source or config.name}: scenario "
-                                 f"{p.scenario!r}, seed {p.seed}: {e}") from None
-    return built
 
 
 # ------------------------------------------------------------------------ rows
@@ -467,10 +389,11 @@ class BatchRunner:
              r_pad: int | None = None) -> list[dict]:
         """The sweep.csv rows of ``points`` (at most ``batch``, one shape: dimensions and
         waypoints) run as one batch of ``batch`` runs with ``m_pad`` robots; ``built``:
-        their scenarios (:func:`build_scenarios`).  ``on_compiled`` is called after a
-        compilation, before the run.  ``weights``: per point, {name: value} of its other
-        traced [planner] weights (module doc; None: the config's).  ``r_pad``: static
-        rows to pad every world to (default: the batch's largest world's)."""
+        their scenarios (:func:`jaxplan.sweep.points.build_scenarios`).  ``on_compiled``
+        is called after a compilation, before the run.  ``weights``: per point, {name:
+        value} of its other traced [planner] weights (module doc; None: the config's).
+        ``r_pad``: static rows to pad every world to (default: the batch's largest
+        world's)."""
         points = list(points)
         if not 1 <= len(points) <= batch:
             raise ValueError(f"a batch holds 1 to {batch} points, got {len(points)}")

@@ -10,7 +10,7 @@
 
 Both readers parse the file the same way (:func:`_read_records`: a trailing line without
 its newline, what a kill mid-append leaves, is dropped).  :func:`read_sweep_csv` is the
-resuming reader of :mod:`jaxplan.sweep`: it wants exactly :data:`COLUMNS` and drops
+resuming reader of :mod:`jaxplan.sweep.engines`: it wants exactly :data:`COLUMNS` and drops
 malformed and duplicate rows.  :func:`read_sweep_rows` is the analysis reader used by
 :func:`best_setting`, the CLI's summary and :func:`jaxplan.plots.plot_sweep`: it needs
 at least :data:`ANALYSIS_COLUMNS` and raises ``ValueError("<file>: <column>: <problem>")``

@@ -1,15 +1,15 @@
-"""Weight x seed x scenario grids, batched and resumable, on this machine, on a Ray
-cluster or in shards (docs/DESIGN.md "A sweep directory").
+"""`jaxplan sweep`: weight x seed x scenario grids, batched and resumable, on this
+machine, on a Ray cluster or in shards (docs/DESIGN.md "A sweep directory").
 
     run_sweep(config, out_dir, *, progress=True, batch_size=None, figures=True,
               echo=print, engine=None, address=None, shard=None) -> SweepResult
     merge_shards(config, out_dir, *, figures=True, echo=print) -> SweepResult
-    sweep_points(config) -> list[SweepPoint]          the whole grid, in run order
     shard_csv_name(index, count) -> "sweep.shard-I-of-N.csv"
 
 sweep.csv itself (its columns, both of its readers, the best setting) is
-:mod:`jaxplan.sweep_csv`; one batch of points (padding, the compiled program, the rows)
-is :mod:`jaxplan.sweep_batch`.
+:mod:`jaxplan.sweep.table`; the grid's points and scenarios :mod:`jaxplan.sweep.points`;
+one batch of points (padding, the compiled program, the rows) :mod:`jaxplan.sweep.batch`;
+the config guard :mod:`jaxplan.sweep.guard`.
 
 The grid is ``[sweep] q_obs x q_lim x seeds x scenarios`` (``scenarios`` empty: the
 config's own fleet, named by its ``[scenario] kind`` or, with ``[[robots]]``, by the
@@ -25,36 +25,36 @@ CPU; Ray engine: :data:`DEFAULT_BATCH_CPU` per task; or the environment variable
 counts share one shape (smaller fleets padded with masked robots to the largest of the
 whole grid, so that resuming, a shard and every engine pad alike), scenarios that
 differ in the number of waypoints or of spatial dimensions form separate groups.  One
-batch is one call of one compiled program (:class:`jaxplan.sweep_batch.BatchRunner`),
+batch is one call of one compiled program (:class:`jaxplan.sweep.batch.BatchRunner`),
 compiled once per shape group and process; compilations are counted from JAX's own
 compile events and printed (``compilations: 1`` for a one-group grid on the local
 engine; one per worker and shape group on Ray).
 
 Engines (``engine``, default ``[sweep] engine``).  "local": the batches run one after
 another in this process, split over its CPU devices.  "ray": each batch is a Ray task
-(:mod:`jaxplan.sweep_ray`) on a local Ray instance or the cluster at ``address``; the
+(:mod:`jaxplan.sweep.ray`) on a local Ray instance or the cluster at ``address``; the
 driver writes the rows as the tasks return them, and a task whose worker died runs
 again.  Both write the same row for the same point.
 
 Shards (``shard=(I, N)``, for batch schedulers): only the grid points whose index in
-:func:`sweep_points`'s order is I mod N, into their own ``sweep.shard-I-of-N.csv`` in the
-sweep directory (no figures); :func:`merge_shards` merges every shard file (and any
-sweep.csv already there) into sweep.csv, one row per key, in grid order, and draws the
-figures.
+:func:`jaxplan.sweep.points.sweep_points`'s order is I mod N, into their own
+``sweep.shard-I-of-N.csv`` in the sweep directory (no figures); :func:`merge_shards`
+merges every shard file (and any sweep.csv already there) into sweep.csv, one row per
+key, in grid order, and draws the figures.
 
 Resuming.  Rows are keyed by (q_obs, q_lim, scenario, seed), the weights written with
 Python's ``repr`` (exact round trip).  After each batch its rows are appended to the
 CSV as complete lines in one write, under the file's lock
-(:func:`jaxplan.fileio.file_lock`), then fsync'ed, so a kill (even SIGKILL) loses at
+(:func:`jaxplan.files.file_lock`), then fsync'ed, so a kill (even SIGKILL) loses at
 most the batches in flight; a process never appends a key twice.  Re-running the same
 command reads the CSV, drops a trailing partial line (a kill mid-write) and skips every
 finished key.  The resolved config is kept in ``config.toml``; a sweep directory made
 with a different config (anything but ``[sweep]``, ``[tune]``, the name and the
-description) is refused (:class:`SweepError`), so rows of two different planners are
-never mixed.
+description) is refused (:func:`jaxplan.sweep.guard.guard_config`), so rows of two
+different planners are never mixed.
 Growing the grid in the same directory is fine: only the new points run.
 
-Columns (:data:`jaxplan.sweep_csv.COLUMNS`): the key, then success (1/0), collisions,
+Columns (:data:`jaxplan.sweep.table.COLUMNS`): the key, then success (1/0), collisions,
 min_separation_ratio, makespan_s (empty: not every robot reached its last waypoint),
 mean_time_to_goal_s (mean over the robots that reached their last waypoint),
 reached_frac (robots that reached their last waypoint), waypoints_frac (waypoints
@@ -68,7 +68,7 @@ per replan is not measured in sweeps (one batch is one program).
 
 Figures (``figures/``, :func:`jaxplan.plots.plot_sweep`): heatmaps of success rate,
 minimum separation ratio and makespan over the grid; the best setting
-(:func:`jaxplan.sweep_csv.best_setting`) is printed.
+(:func:`jaxplan.sweep.table.best_setting`) is printed.
 """
 
 from __future__ import annotations
@@ -76,7 +76,6 @@ from __future__ import annotations
 import math
 import re
 import time
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -84,49 +83,34 @@ from pathlib import Path
 import jax
 
 from jaxplan import env_positive_int
-from jaxplan.config import SWEEP_ENGINES, Config, ConfigError, config_to_toml, parse_config
-from jaxplan.fileio import append_lines, atomic_write_text, file_lock
+from jaxplan.config import SWEEP_ENGINES, Config
+from jaxplan.files import append_lines, atomic_write_text, file_lock
 from jaxplan.progress import AfterFirstUpdate, NoProgress
-from jaxplan.sweep_batch import (
-    BatchRunner,
-    CompileCounter,
-    SweepPoint,
-    Tally,
-    build_scenarios,
-    structure_for,
-    sweep_points,
-)
-from jaxplan.sweep_csv import (
-    SweepError,
-    best_setting,
-    csv_text,
-    read_sweep_csv,
-    row_key,
-)
+from jaxplan.sweep.batch import BatchRunner, CompileCounter, Tally
+from jaxplan.sweep.guard import guard_config
+from jaxplan.sweep.points import SweepPoint, build_scenarios, sweep_points
+from jaxplan.sweep.table import SweepError, best_setting, csv_text, read_sweep_csv, row_key
 
 __all__ = [
+    "BATCH_ENV",
     "DEFAULT_BATCH",
-    "SweepError",
-    "SweepPoint",
+    "DEFAULT_BATCH_CPU",
     "SweepResult",
     "merge_shards",
     "parse_shard",
     "run_sweep",
     "shard_csv_name",
-    "sweep_points",
 ]
 
 DEFAULT_BATCH = 27  # runs per batch on an accelerator
 # On a CPU one run per device at a time is faster than vmapping runs on one device: a
 # vmapped solver runs every lane for as many iterations as its slowest lane needs
-# (2 cores: 20 antipodal_10 runs took 127 s as one batch, about 90 s one after another;
-# `JAXPLAN_SWEEP_BATCH=20` against `JAXPLAN_SWEEP_BATCH=1` on such a sweep shows it).
-# Several CPU devices (jaxplan makes one per core) run their runs side by side
-# (jaxplan.sweep_batch.cpu_shards); a Ray task has one CPU and one device.
+# (docs/SWEEPS.md, "Batches on a CPU").  Several CPU devices (jaxplan makes one per core)
+# run their runs side by side (jaxplan.sweep.batch.cpu_shards); a Ray task has one CPU
+# and one device.
 DEFAULT_BATCH_CPU = 1  # runs per CPU device
 BATCH_ENV = "JAXPLAN_SWEEP_BATCH"
 SHARD_CSV = re.compile(r"sweep\.shard-(\d+)-of-(\d+)\.csv")
-_structure = structure_for  # the name tests/test_planner.py imports
 
 
 def shard_csv_name(index: int, count: int) -> str:
@@ -155,7 +139,7 @@ class SweepResult:
     program (JAX compile events; on Ray, summed over the workers), cache_hits of them
     loaded from the persistent compilation cache.  compile_s, run_s:
     seconds (on Ray, summed over the workers), wall_s: seconds.  best:
-    :func:`jaxplan.sweep_csv.best_setting`'s dict (None without rows or for a shard).
+    :func:`jaxplan.sweep.table.best_setting`'s dict (None without rows or for a shard).
     figures: the heatmap paths.  engine: "local" or "ray" ("merge" for a merge).
     missing: grid points without a row (after a merge).
     """
@@ -176,85 +160,6 @@ class SweepResult:
     engine: str = "local"
     missing: int = 0
     cache_hits: int = 0
-
-
-# ------------------------------------------------------------------------ config guard
-
-_FREE_TABLES = ("sweep", "tune", "name", "description")
-# keys added later whose default changed what a run does: a config.toml without one was
-# written by a version that behaved as this value (so resuming it under the new default
-# is a different config, not the same one)
-# (a 3-D fleet under "auto" then never sidestepped: 1e4 s, the longest wait, stands for
-# that, so that such a directory is refused rather than resumed under the new rule)
-_LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off",
-                  ("planner", "sidestep_wait_3d_s"): 1e4,
-                  ("planner", "sidestep_mutual_at_once"): False,
-                  ("planner", "stall_window_mutual_s"): 1e4,
-                  ("planner", "sidestep_hold_mutual_s"): 2.0}
-
-
-# What a run does beyond what its config says.  Raise it with every change to the
-# planner, the simulation or the metrics that changes a sweep's rows without a config
-# key (a rule, a constant, a metric's definition): the sweep and tune directories carry
-# it in config.toml's first line, and one made by another revision is refused rather
-# than resumed with rows of two versions (one without the line counts as revision 0).
-BEHAVIOUR_REVISION = 6
-_REVISION = "# jaxplan behaviour revision: "
-
-
-def stamped(text: str) -> str:
-    """config.toml's text with this version's behaviour revision as its first line."""
-    return f"{_REVISION}{BEHAVIOUR_REVISION}\n{text}"
-
-
-def check_revision(path: Path, text: str, kind: str) -> None:
-    """Raise SweepError when the config.toml ``text`` at ``path`` was written by another
-    behaviour revision (:data:`BEHAVIOUR_REVISION`) than this version's."""
-    first = text.split("\n", 1)[0].strip()
-    rest = first[len(_REVISION):].strip() if first.startswith(_REVISION.strip()) else ""
-    revision = int(rest) if rest.isdigit() else 0
-    if revision != BEHAVIOUR_REVISION:
-        raise SweepError(f"{path}: this {kind} directory was made by jaxplan behaviour "
-                         f"revision {revision}, this version is {BEHAVIOUR_REVISION} (its "
-                         "runs differ where no config key says so); use another --out")
-
-
-def _guard_config(out: Path, config: Config) -> None:
-    """Keep config.toml; refuse a directory made with a different config.  Under the
-    file's lock: shards of one sweep start side by side in one directory."""
-    path = out / "config.toml"
-    with file_lock(path):
-        _check_and_write_config(path, config)
-
-
-def _check_and_write_config(path: Path, config: Config) -> None:
-    text = config_to_toml(config)
-    if path.exists():
-        try:
-            raw = path.read_text("utf-8")
-            old = tomllib.loads(raw)
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-            raise SweepError(f"{path}: unreadable ({e}); use another --out") from None
-        check_revision(path, raw, "sweep")
-        # compare resolved configs: a key added later with its default (written by this
-        # version, absent from an older config.toml) is no difference, unless the
-        # default changed the behaviour (_LEGACY_VALUES)
-        for (table, key), value in _LEGACY_VALUES.items():
-            if isinstance(old.get(table, {}), dict) and key not in old.get(table, {}):
-                old.setdefault(table, {})[key] = value
-        try:
-            old = tomllib.loads(config_to_toml(parse_config(old, source=str(path))))
-        except ConfigError as e:
-            raise SweepError(f"{path}: not a config this version reads ({e}); use another "
-                             "--out") from None
-        new = tomllib.loads(text)
-        strip = lambda d: {k: v for k, v in d.items() if k not in _FREE_TABLES}  # noqa: E731
-        if strip(old) != strip(new):
-            diff = sorted(k for k in set(strip(old)) | set(strip(new))
-                          if strip(old).get(k) != strip(new).get(k))
-            raise SweepError(f"{path}: this sweep directory was made with a different config "
-                             f"(differs in: {', '.join(diff)}); use another --out")
-    atomic_write_text(path, stamped(text))
 
 
 # ------------------------------------------------------------------------ the CSV
@@ -415,7 +320,7 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / (shard_csv_name(*shard) if shard else "sweep.csv")
-    _guard_config(out, config)
+    guard_config(out, config)
     done = _resume_csv(csv_path, say)
     grid = sweep_points(config)
     points = grid if shard is None else grid[shard[0]::shard[1]]
@@ -437,7 +342,7 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
                if progress else NoProgress())
         try:
             if engine == "ray":
-                from jaxplan import sweep_ray
+                from jaxplan.sweep import ray as sweep_ray
 
                 bar.start()
                 sweep_ray.run_batches(config, batches, batch, write, tally, address=address,
@@ -479,7 +384,7 @@ def merge_shards(config: Config, out_dir, *, figures: bool = True,
                     key=lambda p: (int(found[p].group(2)), int(found[p].group(1))))
     if not shards:
         raise SweepError(f"{out}: no shard files (sweep.shard-I-of-N.csv) to merge")
-    _guard_config(out, config)
+    guard_config(out, config)
     csv_path = out / "sweep.csv"
     points = sweep_points(config)
     order = {p.key: k for k, p in enumerate(points)}

@@ -14,7 +14,7 @@ installed at the same version.
 A task (:func:`jaxplan_sweep_batch`) runs in a Ray worker process with one CPU and one
 JAX CPU device (``JAXPLAN_CPU_DEVICES=1`` in the task's runtime environment): it reads
 the resolved config (its config.toml text), builds its points' scenarios and returns
-their sweep.csv rows (:class:`jaxplan.sweep_batch.BatchRunner`, the same code the
+their sweep.csv rows (:class:`jaxplan.sweep.batch.BatchRunner`, the same code the
 local engine runs).  A worker keeps its compiled batch programs for its next tasks, so
 each worker compiles once per shape; workers use the driver's
 persistent compilation cache directory (JAX's settings passed as environment
@@ -37,8 +37,9 @@ from collections.abc import Callable
 
 from jaxplan import env_positive_int
 from jaxplan.config import Config, config_to_toml, parse_config
-from jaxplan.sweep_batch import BatchRunner, SweepPoint, Tally, build_scenarios, sweep_points
-from jaxplan.sweep_csv import SweepError
+from jaxplan.sweep.batch import BatchRunner, Tally
+from jaxplan.sweep.points import SweepPoint, build_scenarios, sweep_points
+from jaxplan.sweep.table import SweepError
 
 __all__ = ["RETRIES", "TASK_NAME", "jaxplan_sweep_batch", "run_batches"]
 
