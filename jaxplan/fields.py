@@ -15,7 +15,8 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Sequence
-from typing import Annotated, Any
+from dataclasses import dataclass
+from typing import Annotated, Any, get_args
 
 from pydantic import AfterValidator, BeforeValidator, Field, Strict, ValidationInfo
 
@@ -23,6 +24,8 @@ from jaxplan.vehicles import ROBOTS
 
 __all__ = [
     "FieldProblem",
+    "Range",
+    "range_of",
     "show",
     "one_of",
     "number",
@@ -86,10 +89,34 @@ def one_of(choices: Sequence[str]) -> AfterValidator:
     return AfterValidator(check)
 
 
+@dataclass(frozen=True)
+class Range:
+    """A numeric field's bounds as declared (None: none on that side; multiple_of: an
+    integer's step), read back by :func:`range_of`: the one declaration that the
+    checks, the [tune] ranges (jaxplan.config.weight_bounds) and the tests use."""
+
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    multiple_of: int | None = None
+
+    def __contains__(self, x: float) -> bool:
+        return ((self.gt is None or x > self.gt) and (self.ge is None or x >= self.ge)
+                and (self.lt is None or x < self.lt) and (self.le is None or x <= self.le)
+                and (self.multiple_of is None or x % self.multiple_of == 0))
+
+
+def range_of(tp: Any) -> Range | None:
+    """The :class:`Range` of a field type made by :func:`number`, :func:`integer` or
+    :func:`auto_or_number` (None for any other type)."""
+    return next((m for m in get_args(tp)[1:] if isinstance(m, Range)), None)
+
+
 def number(**bounds: float) -> Any:
     """A finite float (an integer is taken too, a boolean is not) within ``bounds``
     (gt, ge, lt, le; give them as floats: messages print them with ``:g``)."""
-    return Annotated[float, Strict(), Field(allow_inf_nan=False, **bounds)]
+    return Annotated[float, Strict(), Field(allow_inf_nan=False, **bounds), Range(**bounds)]
 
 
 def auto_or_number(gt: float, le: float) -> Any:
@@ -104,12 +131,12 @@ def auto_or_number(gt: float, le: float) -> Any:
                                f"got {show(v)}")
         return float(v)
 
-    return Annotated[Any, BeforeValidator(check)]
+    return Annotated[Any, BeforeValidator(check), Range(gt=gt, le=le)]
 
 
 def integer(**bounds: int) -> Any:
-    """An integer (not a boolean, not a float) within ``bounds`` (ge, le)."""
-    return Annotated[int, Strict(), Field(**bounds)]
+    """An integer (not a boolean, not a float) within ``bounds`` (ge, le, multiple_of)."""
+    return Annotated[int, Strict(), Field(**bounds), Range(**bounds)]
 
 
 def string(*validators: Any) -> Any:

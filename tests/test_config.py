@@ -67,8 +67,11 @@ ERRORS = [
     ({"scenario": {"kind": "random_box", "count": 3, "spacing": 1}}, "scenario.spacing",
      "unknown key"),
     # impossible values
-    (two(planner={"replan_hz": 0}), "planner.replan_hz", "must be > 0"),
-    (two(planner={"replan_hz": -8.0}), "planner.replan_hz", "must be > 0"),
+    (two(planner={"replan_hz": 0}), "planner.replan_hz", "must be >= 0.1"),
+    (two(planner={"replan_hz": -8.0}), "planner.replan_hz", "must be >= 0.1"),
+    (two(planner={"q_dynm": 0}), "planner.q_dynm", "must be >= 1e-06, got 0"),
+    (two(planner={"n_samples": 30}), "planner.n_samples", "must be a multiple of 4, got 30"),
+    (two(planner={"degree": 12}), "planner.degree", "must be <= 9, got 12"),
     (two(planner={"degree": 4}), "planner.degree", "must be >= 5, got 4"),
     (two(planner={"segments": 0}), "planner.segments", "must be >= 1, got 0"),
     (two(planner={"q_obs": -1.0}), "planner.q_obs", "must be >= 0"),
@@ -76,12 +79,12 @@ ERRORS = [
     (two(planner={"coast_samples": 2.5}), "planner.coast_samples", "expected an integer"),
     (two(planner={"solver_pool": -1}), "planner.solver_pool", "must be >= 0"),
     (two(planner={"solver_pool": 1.5}), "planner.solver_pool", "expected an integer"),
-    (two(planner={"k_p": 0.0}), "planner.k_p", "must be > 0"),
+    (two(planner={"k_p": 0.0}), "planner.k_p", "must be >= 0.001"),
     (two(planner={"collision": "barier"}), "planner.collision",
      "unknown value 'barier' (did you mean 'barrier'?)"),
     (two(planner={"end_state": "stop"}), "planner.end_state", "unknown value 'stop'"),
-    (two(limits={"v_max": 0.0}), "limits.v_max", "must be > 0"),
-    (two(limits={"a_max": -2.0}), "limits.a_max", "must be > 0"),
+    (two(limits={"v_max": 0.0}), "limits.v_max", "must be >= 0.001"),
+    (two(limits={"a_max": -2.0}), "limits.a_max", "must be >= 0.001"),
     (two(limits={"j_max": math.inf}), "limits.j_max", "finite"),
     (two(planner={"q_lim": math.nan}), "planner.q_lim", "finite"),
     (two(sim={"backend": "gazebo"}), "sim.backend", "unknown value 'gazebo'"),
@@ -172,7 +175,7 @@ ERRORS = [
     (two(sweep={"seeds": {1: 2}}), "sweep.seeds", "expected string keys, got 1"),
     (two(sweep={"seeds": {"start": 2**63 - 2, "num": 3}}), "sweep.seeds", "must be < 2**63"),
     (two(faults={"enabled": 1}), "faults.enabled", "expected true or false, got 1"),
-    (two(faults={"latency_s": 11}), "faults.latency_s", "must be <= 10 s, got 11.0"),
+    (two(faults={"latency_s": 11}), "faults.latency_s", "must be <= 10, got 11"),
     (two(planner={"q_obs": 2**2000}), "planner.q_obs", "number out of range"),
     ({"scenario": {"kind": "random_box", "count": 3, "box": [[0, 0], [1, 1, 1]]}},
      "scenario.box[1]", "expected 2 coordinates"),
@@ -470,11 +473,45 @@ def test_fuzz_bases_are_valid(data):
 def test_solver_keys_reach_the_solver_and_defaults_agree():
     """[planner] max_iters and tol are what the planner's solver runs with
     (FleetParams.settings), and their defaults are SolverSettings' own."""
-    from jaxplan import experiment, solve
+    from jaxplan import run_setup, solve
 
     assert C.DEFAULT_MAX_ITERS == solve.SolverSettings().max_iters
     assert C.DEFAULT_TOL == solve.SolverSettings().tol_feasibility
     assert C.DEFAULT_TOL == solve.SolverSettings().tol_complementarity
     cfg = parse_config({**two(), "planner": {"max_iters": 17, "tol": 3e-7}})
-    s = experiment.fleet_params(cfg, build_scenario(cfg)).settings
+    s = run_setup.fleet_params(cfg, build_scenario(cfg)).settings
     assert (s.max_iters, s.tol_feasibility, s.tol_complementarity) == (17, 3e-7, 3e-7)
+
+
+def test_library_defaults_are_the_schemas():
+    """Where a library function keeps a default of its own for API users, it is the
+    config's (jaxplan/config/schema.py, the one place to change one); where it differs on
+    purpose, the comment says why."""
+    import inspect
+
+    from jaxplan.nlp import NLPStructure
+    from jaxplan.planner import PlannerStructure
+    from jaxplan.planner.stall import STALL_WINDOW_3D_S, default_params
+    from jaxplan.sim.fleet import init_sim
+
+    d = {k: p.default for k, p in inspect.signature(default_params).parameters.items()}
+    assert (d["progress"], d["near"], d["hold"], d["step"], d["angle_deg"], d["mutual"]) == (
+        C.schema.DEFAULT_STALL_PROGRESS_M, C.schema.DEFAULT_STALL_NEAR_M,
+        C.schema.DEFAULT_SIDESTEP_HOLD_S, C.schema.DEFAULT_SIDESTEP_STEP_M,
+        C.schema.DEFAULT_SIDESTEP_ANGLE_DEG, C.schema.DEFAULT_SIDESTEP_MUTUAL_AT_ONCE)
+    assert d["window"] == STALL_WINDOW_3D_S  # stall_window_s "auto" in 3-D
+    # NLPStructure's segments (1) and n_coast_samples (0) are the paper's NLP, not the
+    # planner's defaults
+    nlp = NLPStructure()
+    assert (nlp.degree, nlp.collision, nlp.n_collision_samples) == (
+        C.DEFAULT_DEGREE, C.DEFAULT_COLLISION, C.DEFAULT_N_SAMPLES)
+    # PlannerStructure's max_static_rows (0: every row) is the NLP's own, without a world
+    ps = PlannerStructure()
+    assert (ps.max_neighbors, ps.solver_pool) == (C.DEFAULT_MAX_NEIGHBORS, C.DEFAULT_SOLVER_POOL)
+    sim = inspect.signature(init_sim).parameters
+    assert (sim["physics_hz"].default, sim["control_hz"].default) == (
+        C.DEFAULT_PHYSICS_HZ, C.DEFAULT_CONTROL_HZ)
+    # tol's bound: a plan the solver calls converged is one the iteration cap accepts
+    from jaxplan.run_setup import ACCEPT_VIOLATION
+
+    assert C.schema.MAX_TOL == ACCEPT_VIOLATION

@@ -25,7 +25,7 @@
                half_height            (jaxplan/world.py)
     [tune]     weights (a table: name = {low, high, log}), scenarios, seeds, holdout_seeds,
                objective, min_success_rate, min_separation_ratio, trials, batch, sampler,
-               enqueue_defaults (read by `jaxplan tune`, jaxplan/tune.py)
+               enqueue_defaults (read by `jaxplan tune`, jaxplan/tune/)
 
 Robots: ``goal = [x, y, z]`` (one goal) or ``waypoints = [[x, y, z], ...]`` (several, in
 order; the fleet moves on when every robot reached waypoint w).  ``goal_velocity`` is
@@ -41,17 +41,25 @@ messages count from 0 (``robots[0]`` is the first ``[[robots]]``).  Positions ha
 key).  ``[[robots]]`` entries, if any, are appended after the generated robots.  The
 top-level ``seed`` seeds the generator.
 
-Each section is a pydantic dataclass (unknown keys forbidden, frozen, hashable; the field
-types are in jaxplan/fields.py).  Every error is a :class:`ConfigError` whose message is
-one line, ``<file>: <key>: <problem>``, raised before any computation: pydantic's
-validation errors are translated into that form in errors.py.
+Each section is a pydantic dataclass validated from its TOML table (unknown keys
+forbidden, frozen, hashable; the field types are in jaxplan/fields.py), every default
+and every numeric key's range declared once, on its field (:func:`weight_bounds`: a
+[planner] weight's, which a [tune] range must lie within).  Every error is a
+:class:`ConfigError` whose message is one line, ``<file>: <key>: <problem>``, raised
+before any computation: pydantic's validation errors are translated into that form in
+errors.py.
 
-The package: schema.py (defaults, section models), errors.py (one-line errors),
-parse.py (documents -> Config), resolve.py (Config -> config.toml, Scenario).
+The package: schema.py (defaults, bounds, the plain sections' models), robots.py,
+scenario.py, sweep.py, tune.py (the models of the sections whose TOML form differs from
+their resolved one), model.py (Config), errors.py (one-line errors), parse.py
+(documents -> Config), resolve.py (Config -> config.toml, Scenario).
 """
 
-from jaxplan.config.parse import load_config, parse_config, tune_scenario_path
+from jaxplan.config.model import TOP_KEYS, Config
+from jaxplan.config.parse import load_config, parse_config
 from jaxplan.config.resolve import build_scenario, config_to_dict, config_to_toml
+from jaxplan.config.robots import ROBOT_KEYS, RobotConfig
+from jaxplan.config.scenario import GENERATOR_KEYS, ScenarioConfig
 from jaxplan.config.schema import (
     BACKENDS,
     COLLISION_MODES,
@@ -81,7 +89,6 @@ from jaxplan.config.schema import (
     DEFAULT_SWEEP_ENGINE,
     DEFAULT_TOL,
     FAULT_KEYS,
-    GENERATOR_KEYS,
     MAX_COAST_SAMPLES,
     MAX_DEGREE,
     MAX_ITERS,
@@ -89,28 +96,24 @@ from jaxplan.config.schema import (
     MAX_SEED,
     MAX_SEGMENTS,
     MAX_SWEEP_POINTS,
-    ROBOT_KEYS,
     SWEEP_ENGINES,
-    TOP_KEYS,
     TUNABLE_WEIGHTS,
-    TUNE_KEYS,
     TUNE_OBJECTIVES,
     TUNE_SAMPLERS,
-    Config,
+    Bounds,
     ConfigError,
     FaultsConfig,
     LimitsConfig,
     PlannerConfig,
-    RobotConfig,
-    ScenarioConfig,
     SimConfig,
-    SweepConfig,
-    TuneConfig,
-    WeightRange,
+    weight_bounds,
 )
+from jaxplan.config.sweep import SweepConfig
+from jaxplan.config.tune import TUNE_KEYS, TuneConfig, WeightRange, tune_scenario_path
 
 __all__ = [
     "BACKENDS",
+    "Bounds",
     "COLLISION_MODES",
     "Config",
     "ConfigError",
@@ -170,4 +173,5 @@ __all__ = [
     "load_config",
     "parse_config",
     "tune_scenario_path",
+    "weight_bounds",
 ]

@@ -12,11 +12,9 @@ from jaxplan import scenarios
 from jaxplan.config.errors import (
     adapter_for,
 )
-from jaxplan.config.schema import (
-    Config,
-    ConfigError,
-    RobotConfig,
-)
+from jaxplan.config.model import Config
+from jaxplan.config.robots import RobotConfig
+from jaxplan.config.schema import ConfigError
 from jaxplan.scenarios import PAPER_SCENARIOS, Scenario
 from jaxplan.vehicles import ROBOTS
 from jaxplan.world import World, obstacle_arrays

@@ -1,12 +1,16 @@
-"""The config's defaults and its section models: one frozen pydantic dataclass per TOML
-section (unknown keys forbidden; field types from jaxplan/fields.py), and the keys each
-section and each generator takes."""
+"""The config's defaults and bounds, and the models of its plain sections ([planner],
+[limits], [sim], [faults], [workspace], [[obstacles]]): one frozen pydantic dataclass
+per TOML section (unknown keys forbidden; field types from jaxplan/fields.py), each
+numeric key's range declared once, on its field (read back by
+:func:`jaxplan.fields.range_of`, :func:`weight_bounds`).  The sections whose TOML form
+differs from their resolved one have their own modules: robots.py, scenario.py,
+sweep.py, tune.py; model.py holds the whole :class:`Config`."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from typing import Annotated, Any
+import typing
+from typing import Annotated, Any, NamedTuple
 
 from pydantic import (
     AfterValidator,
@@ -17,25 +21,24 @@ from pydantic import (
 )
 from pydantic.dataclasses import dataclass
 
-from jaxplan import scenarios
-from jaxplan.deadlock import RESOLUTIONS
 from jaxplan.fields import (
+    MAX_COORD,
     MAX_ROBOTS,
     EndState,
     FieldProblem,
     Position,
     PositiveLength,
-    VehicleName,
     auto_or_number,
     integer,
     number,
     one_of,
+    range_of,
     show,
     string,
 )
-from jaxplan.guide import GUIDE_MODES
 from jaxplan.nlp import PLANNER_COLLISION_MODES
-from jaxplan.scenarios import GENERATOR_PARAMS
+from jaxplan.planner.guide import GUIDE_MODES
+from jaxplan.planner.stall import RESOLUTIONS
 
 # ---------------------------------------------------------------------------------------
 # Defaults: the one place to tune them.  The weights are placeholders for the solver.
@@ -60,16 +63,17 @@ MAX_STATIC_ROWS = 100_000
 DEFAULT_SOLVER_POOL = 0                  # 0: automatic (jaxplan.solve.default_pool)
 DEFAULT_COAST_SAMPLES = 8                # constraint samples on a free end's coast after T
 MAX_COAST_SAMPLES = 256
-# stalls and their resolution (jaxplan/deadlock.py)
+# stalls and their resolution (jaxplan/planner/stall.py)
 DEFAULT_DEADLOCK = "auto"                # "auto" | "sidestep" | "off" (detection runs either way);
 # auto: the sidestep, at once for planar fleets (without it they do not arrive:
 # docs/RESULTS.md), after sidestep_wait_3d_s more in 3-D (a robot of a 3-D fleet waiting
 # for another to pass stalls a few seconds: sidestepping then made the tests' tiny 3-D
 # swap 20% longer, 6.43 s against 5.34 s)
-# the way round a wall (jaxplan/guide.py): "auto" (on in a world with obstacles) | "on" | "off"
+# the way round a wall (jaxplan/planner/guide.py): "auto" (on in a world with obstacles) |
+# "on" | "off"
 DEFAULT_GUIDE = "auto"
 # s without progress before a robot is stalled; "auto": 1 s for a planar fleet, 2 s in
-# 3-D (jaxplan.deadlock.stall_window)
+# 3-D (jaxplan.planner.stall.stall_window)
 DEFAULT_STALL_WINDOW_S = "auto"
 DEFAULT_STALL_PROGRESS_M = 0.2           # m: less progress than this over the window
 DEFAULT_STALL_NEAR_M = 1.0               # m of clearance to another robot that counts as near
@@ -96,17 +100,38 @@ DEFAULT_GOAL_SPEED_TOLERANCE_MPS = 0.1   # residual speed allowed at a rest goal
 
 COLLISION_MODES = PLANNER_COLLISION_MODES  # the NLP's modes but "none" (jaxplan/nlp/types.py)
 BACKENDS = ("ideal", "mjx")
-SWEEP_ENGINES = ("local", "ray")  # where `jaxplan sweep` runs its batches (jaxplan/sweep.py)
+SWEEP_ENGINES = ("local", "ray")  # where `jaxplan sweep` runs its batches (jaxplan/sweep/)
 DEFAULT_SWEEP_ENGINE = "local"
 FROZEN_MODES = ("silent", "stale")
-MAX_DEGREE = 15
-MAX_SEGMENTS = 64
+
+# ---------------------------------------------------------------------------------------
+# Bounds: each numeric key's range is declared once, on its field below (read back by
+# jaxplan.fields.range_of, weight_bounds); these are the ones that need a reason.
+# ---------------------------------------------------------------------------------------
+MAX_WEIGHT = 1e6       # q_dynm, q_obs, q_lim, k_t: the objective's terms stay in float range
+MIN_Q_DYNM = 1e-6      # the predictions' time weight is k_t / q_dynm (<= 1e12)
+MIN_K_P, MAX_K_P = 1e-3, 1e3  # 1/m: "paper" divides by k_p; exp(-k_p (d - rho)) overflows
+MIN_REPLAN_HZ, MAX_REPLAN_HZ = 0.1, 100.0  # Hz: a period of at most 10 s, at least 10 ms
+MAX_TOL = 1e-3         # m^2: run_setup.ACCEPT_VIOLATION, what a plan at max_iters may violate
+# the NLP's basis (jaxplan/nlp/basis.py) solves a generalized eigenproblem on the Gram
+# matrix of the positions: its smallest relative eigenvalue is 4.6e-13 at degree 9 and 16
+# segments, 3e-16 at degree 11; degree 12 fails outright at 16 segments, 13 at 2, 14 at 1
+MAX_DEGREE = 9
+MAX_SEGMENTS = 16      # each segment adds (degree + 1) N unknowns to every robot's NLP
 MAX_SAMPLES = 4096
 MAX_SWEEP_POINTS = 10000
 MAX_SEED = 2**63 - 1
-MAX_ITERS = 1_000_000
+MAX_ITERS = 10_000     # solver iterations per replan: a replan's time stays bounded
+MAX_SAFETY_MARGIN_M = 10.0
+MAX_DURATION_S = 3600.0  # s: at most 360,000 replans (MAX_REPLAN_HZ) kept in memory
+MIN_CONTROL_HZ = 100.0   # Hz: the simulator samples its records at control ticks
+MAX_PHYSICS_HZ = 10_000.0
+# [limits] v_max, a_max, j_max (m/s, m/s^2, m/s^3): their squares (the soft-limit term)
+# and the stopping time v_max / a_max (the coast samples) stay well inside float range
+MIN_LIMIT, MAX_LIMIT = 1e-3, 1e4
+MAX_LATENCY_S = 10.0
 
-# [tune] (jaxplan/tune.py)
+# [tune] (jaxplan/tune/)
 TUNABLE_WEIGHTS = ("q_dynm", "q_obs", "q_lim", "k_t", "k_p", "safety_margin_m")
 TUNE_SAMPLERS = ("tpe", "cmaes")
 TUNE_OBJECTIVES = ("median_makespan_s", "mean_makespan_s", "max_makespan_s")
@@ -133,14 +158,16 @@ SECTION_CONFIG = ConfigDict(extra="forbid")  # every section model: unknown keys
 @dataclass(frozen=True, config=SECTION_CONFIG)
 class PlannerConfig:
     """[planner]: rates, NLP weights, collision treatment, trajectory shape, solver.
+    Each numeric key's range is its field's (the bounds above say why).
 
-    replan_hz (Hz); q_dynm, q_obs, q_lim, k_t (>= 0) objective weights; k_p (1/m, > 0);
-    collision in COLLISION_MODES; degree (>= 5) and segments (>= 1) of the polynomial
-    per axis; end_state "free" | "rest" (default for robots); max_iters (the solver's
-    iteration cap per replan); tol (> 0): the solver's feasibility tolerance (m^2, on
-    d^2 - rho^2) and complementarity tolerance (SolverSettings.tol_feasibility and
-    tol_complementarity); n_samples;
-    safety_margin_m (m, >= 0): added to every robot's radius in the planner's collision
+    replan_hz (Hz); q_dynm, q_obs, q_lim, k_t objective weights; k_p (1/m);
+    collision in COLLISION_MODES; degree and segments of the polynomial per axis;
+    end_state "free" | "rest" (default for robots); max_iters (the solver's iteration
+    cap per replan); tol: the solver's feasibility tolerance (m^2, on d^2 - rho^2) and
+    complementarity tolerance (SolverSettings.tol_feasibility and tol_complementarity);
+    n_samples: collision samples per horizon, a multiple of 4 (4-point Gauss-Legendre
+    panels: jaxplan.nlp.NLPStructure.n_collision_samples, used as given);
+    safety_margin_m (m): added to every robot's radius in the planner's collision
     terms only, so that rho_ij is planned with r_i + r_j + 2 margin while metrics still
     count a collision below r_i + r_j (covers sampling between collision samples and
     the others' replanning).  max_neighbors (>= 0): 0 puts every other robot in each
@@ -162,30 +189,30 @@ class PlannerConfig:
     deadlock "auto" | "sidestep" | "off" and stall_window_s, stall_progress_m, stall_near_m,
     sidestep_hold_s, sidestep_step_m, sidestep_angle_deg, sidestep_wait_3d_s,
     sidestep_mutual_at_once, stall_window_mutual_s, sidestep_hold_mutual_s: stall detection
-    (always on) and the sidestep that resolves a stall (jaxplan/deadlock.py); auto:
+    (always on) and the sidestep that resolves a stall (jaxplan/planner/stall.py); auto:
     sidestep, in 3-D only after sidestep_wait_3d_s more of the stall, unless
     (sidestep_mutual_at_once) no robot near is on its way: a mutual stall, detected after
     stall_window_mutual_s, whose sidestep lasts sidestep_hold_mutual_s.  stall_window_s
-    "auto": 1 s for a planar fleet, 2 s in 3-D (jaxplan.deadlock.stall_window).
+    "auto": 1 s for a planar fleet, 2 s in 3-D (jaxplan.planner.stall.stall_window).
     guide "auto" | "on" | "off": a robot whose straight line to its goal passes through
-    an obstacle plans to a point of the shortest way round instead (jaxplan/guide.py);
+    an obstacle plans to a point of the shortest way round instead (jaxplan/planner/guide.py);
     auto: on in a world with obstacles.
     """
 
-    replan_hz: number(gt=0.0) = DEFAULT_REPLAN_HZ
-    q_dynm: number(ge=0.0) = DEFAULT_Q_DYNM
-    q_obs: number(ge=0.0) = DEFAULT_Q_OBS
-    q_lim: number(ge=0.0) = DEFAULT_Q_LIM
-    k_t: number(ge=0.0) = DEFAULT_K_T
-    k_p: number(gt=0.0) = DEFAULT_K_P
+    replan_hz: number(ge=MIN_REPLAN_HZ, le=MAX_REPLAN_HZ) = DEFAULT_REPLAN_HZ
+    q_dynm: number(ge=MIN_Q_DYNM, le=MAX_WEIGHT) = DEFAULT_Q_DYNM
+    q_obs: number(ge=0.0, le=MAX_WEIGHT) = DEFAULT_Q_OBS
+    q_lim: number(ge=0.0, le=MAX_WEIGHT) = DEFAULT_Q_LIM
+    k_t: number(ge=0.0, le=MAX_WEIGHT) = DEFAULT_K_T
+    k_p: number(ge=MIN_K_P, le=MAX_K_P) = DEFAULT_K_P
     collision: string(one_of(COLLISION_MODES)) = DEFAULT_COLLISION
     degree: integer(ge=5, le=MAX_DEGREE) = DEFAULT_DEGREE
     segments: integer(ge=1, le=MAX_SEGMENTS) = DEFAULT_SEGMENTS
     end_state: EndState = DEFAULT_END_STATE
     max_iters: integer(ge=1, le=MAX_ITERS) = DEFAULT_MAX_ITERS
-    tol: number(gt=0.0) = DEFAULT_TOL
-    n_samples: integer(ge=2, le=MAX_SAMPLES) = DEFAULT_N_SAMPLES
-    safety_margin_m: number(ge=0.0, le=10.0) = DEFAULT_SAFETY_MARGIN_M
+    tol: number(gt=0.0, le=MAX_TOL) = DEFAULT_TOL
+    n_samples: integer(ge=4, le=MAX_SAMPLES, multiple_of=4) = DEFAULT_N_SAMPLES
+    safety_margin_m: number(ge=0.0, le=MAX_SAFETY_MARGIN_M) = DEFAULT_SAFETY_MARGIN_M
     max_neighbors: integer(ge=0, le=MAX_ROBOTS) = DEFAULT_MAX_NEIGHBORS
     max_static_rows: integer(ge=0, le=MAX_STATIC_ROWS) = DEFAULT_MAX_STATIC_ROWS
     coast_samples: integer(ge=0, le=MAX_COAST_SAMPLES) = DEFAULT_COAST_SAMPLES
@@ -207,25 +234,27 @@ class PlannerConfig:
 @dataclass(frozen=True, config=SECTION_CONFIG)
 class LimitsConfig:
     """[limits]: m/s, m/s^2, m/s^3 overrides for every robot; None (not given) = the
-    per-vehicle default.  TOML has no null: a given value must be a positive number."""
+    per-vehicle default.  TOML has no null: a given value must be a number in
+    [MIN_LIMIT, MAX_LIMIT]."""
 
-    v_max: number(gt=0.0) = None
-    a_max: number(gt=0.0) = None
-    j_max: number(gt=0.0) = None
+    v_max: number(ge=MIN_LIMIT, le=MAX_LIMIT) = None
+    a_max: number(ge=MIN_LIMIT, le=MAX_LIMIT) = None
+    j_max: number(ge=MIN_LIMIT, le=MAX_LIMIT) = None
 
 
 @dataclass(frozen=True, config=SECTION_CONFIG)
 class SimConfig:
     """[sim]: backend "ideal" | "mjx"; duration_s (s); physics_hz, control_hz (Hz,
-    physics_hz / control_hz a whole number); goal_tolerance_m (m);
-    goal_speed_tolerance_mps (m/s, residual speed allowed at a rest goal)."""
+    physics_hz / control_hz a whole number; the simulator's controller runs at >= 100 Hz:
+    jaxplan.sim.fleet.init_sim); goal_tolerance_m (m); goal_speed_tolerance_mps (m/s,
+    residual speed allowed at a rest goal)."""
 
     backend: string(one_of(BACKENDS)) = DEFAULT_BACKEND
-    duration_s: number(gt=0.0) = DEFAULT_DURATION_S
-    physics_hz: number(gt=0.0) = DEFAULT_PHYSICS_HZ
-    control_hz: number(gt=0.0) = DEFAULT_CONTROL_HZ
-    goal_tolerance_m: number(gt=0.0) = DEFAULT_GOAL_TOLERANCE_M
-    goal_speed_tolerance_mps: number(gt=0.0) = DEFAULT_GOAL_SPEED_TOLERANCE_MPS
+    duration_s: number(gt=0.0, le=MAX_DURATION_S) = DEFAULT_DURATION_S
+    physics_hz: number(ge=MIN_CONTROL_HZ, le=MAX_PHYSICS_HZ) = DEFAULT_PHYSICS_HZ
+    control_hz: number(ge=MIN_CONTROL_HZ, le=MAX_PHYSICS_HZ) = DEFAULT_CONTROL_HZ
+    goal_tolerance_m: number(gt=0.0, le=MAX_COORD) = DEFAULT_GOAL_TOLERANCE_M
+    goal_speed_tolerance_mps: number(gt=0.0, le=MAX_COORD) = DEFAULT_GOAL_SPEED_TOLERANCE_MPS
 
     @model_validator(mode="after")
     def _whole_steps_per_control(self) -> SimConfig:
@@ -237,38 +266,24 @@ class SimConfig:
         return self
 
 
-def _below_one(x: float) -> float:
-    if x >= 1.0:
-        raise FieldProblem(f"must be < 1 (a probability), got {x}")
-    return x
-
-
-def _at_most_ten_seconds(x: float) -> float:
-    if x > 10.0:
-        raise FieldProblem(f"must be <= 10 s, got {x}")
-    return x
-
-
-Probability = Annotated[number(ge=0.0), AfterValidator(_below_one)]
-ShortDelay = Annotated[number(ge=0.0), AfterValidator(_at_most_ten_seconds)]
-
-
 @dataclass(frozen=True, config=SECTION_CONFIG)
 class FaultsConfig:
     """[faults] (jaxplan/faults.py): all off by default; ``enabled`` switches the faulty
     channel on (a different compiled program)."""
 
     enabled: Annotated[bool, Strict()] = False
-    message_loss: Probability = 0.0  # per (observer, sender, period), in [0, 1)
-    latency_s: ShortDelay = 0.0  # s, rounded to whole replan periods
-    noise_sigma_m: number(ge=0.0) = 0.0  # m per axis on every received position
-    frozen_robot: integer(ge=-1) = -1  # index of the robot that stops responding; -1: none
-    frozen_at_s: number(ge=0.0) = 0.0  # s
+    message_loss: number(ge=0.0, lt=1.0) = 0.0  # a probability per (observer, sender, period)
+    latency_s: number(ge=0.0, le=MAX_LATENCY_S) = 0.0  # s, rounded to whole replan periods
+    noise_sigma_m: number(ge=0.0, le=MAX_COORD) = 0.0  # m per axis on every received position
+    # index of the robot that stops responding; -1: none
+    frozen_robot: integer(ge=-1, le=MAX_ROBOTS - 1) = -1
+    frozen_at_s: number(ge=0.0, le=MAX_DURATION_S) = 0.0  # s
     frozen_mode: string(one_of(FROZEN_MODES)) = "silent"  # "silent" | "stale" (keeps sending)
 
 
 def _bound_vector(v: Any, info) -> tuple:
-    """A workspace bound: N numbers, each finite or +-inf (TOML's inf), never nan."""
+    """A workspace bound: N numbers, each +-inf (TOML's inf) or within +-MAX_COORD (a
+    finite one is a face of the world: a static row), never nan."""
     if not isinstance(v, (list, tuple)):
         raise FieldProblem(f"expected an array of 2 or 3 numbers (inf for unbounded), got "
                            f"{show(v)}")
@@ -278,6 +293,9 @@ def _bound_vector(v: Any, info) -> tuple:
     for k, x in enumerate(v):
         if isinstance(x, bool) or not isinstance(x, (int, float)) or math.isnan(x):
             raise FieldProblem(f"expected a number or +-inf, got {show(x)}", key=f"[{k}]")
+        if not math.isinf(x) and abs(x) > MAX_COORD:
+            raise FieldProblem(f"must be within +-{MAX_COORD:g} (or +-inf: unbounded), got "
+                               f"{show(x)}", key=f"[{k}]")
     return tuple(float(x) for x in v)
 
 
@@ -344,96 +362,6 @@ class ObstacleConfig:
         return {k: getattr(self, k) for k in OBSTACLE_KEYS if getattr(self, k) is not None}
 
 
-@dataclass(frozen=True)
-class RobotConfig:
-    """One [[robots]] entry, resolved.
-
-    vehicle: name; start: (N,) m; waypoints: W goals of (N,) m; end_state: W of
-    "free" | "rest"; goal_velocity: W entries, each (N,) m/s or None.
-    """
-
-    vehicle: VehicleName
-    start: Position
-    waypoints: tuple[Position, ...]
-    end_state: tuple[EndState, ...]
-    goal_velocity: tuple[Position | None, ...]
-
-
-@dataclass(frozen=True)
-class ScenarioConfig:
-    """[scenario], resolved: kind and, for a generator, its parameter model with every
-    default filled in (None for the paper's four, which take no parameters)."""
-
-    kind: str
-    params: scenarios.AnyGeneratorParams | None = None
-
-    def as_dict(self) -> dict[str, Any]:
-        return {} if self.params is None else self.params.as_dict()
-
-    def get(self, key: str, default: Any = None) -> Any:
-        return self.as_dict().get(key, default)
-
-    @property
-    def dim(self) -> int:
-        return int(self.as_dict().get("dim", 3))
-
-
-@dataclass(frozen=True)
-class SweepConfig:
-    """[sweep], resolved: q_obs, q_lim weight grids; seeds; scenarios (registry names,
-    empty = the config's own fleet); engine ("local": this process; "ray": Ray tasks).
-    Defaults: the planner's weights, the seed and the local engine."""
-
-    q_obs: tuple[float, ...]
-    q_lim: tuple[float, ...]
-    seeds: tuple[int, ...]
-    scenarios: tuple[str, ...] = ()
-    engine: string(one_of(SWEEP_ENGINES)) = DEFAULT_SWEEP_ENGINE
-
-
-@dataclass(frozen=True)
-class WeightRange:
-    """One tuned weight's search range: low < high, sampled on a log scale (low > 0)
-    or a linear one."""
-
-    low: float
-    high: float
-    log: bool = False
-
-
-@dataclass(frozen=True)
-class TuneConfig:
-    """[tune] (read by `jaxplan tune`, jaxplan/tune.py), resolved.
-
-    weights: {name: WeightRange} of [planner] weights in TUNABLE_WEIGHTS, in the order
-    given.  scenarios: registry names or paths of TOML configs whose fleet is used
-    (relative to the config file); empty = the config's own fleet.  seeds: the training
-    seeds; holdout_seeds: the held-out ones (may be empty).  objective (to minimize,
-    over the training runs, a run that did not succeed counting as sim.duration_s) in
-    TUNE_OBJECTIVES; min_success_rate, min_separation_ratio: the constraints (a penalty,
-    jaxplan/tune.py).  trials: trials in all; batch: trials per batch; sampler in
-    TUNE_SAMPLERS; enqueue_defaults: the [planner] weights are the first trial.
-    """
-
-    weights: dict[str, WeightRange]
-    scenarios: tuple[str, ...]
-    seeds: tuple[int, ...]
-    holdout_seeds: tuple[int, ...]
-    objective: str = DEFAULT_TUNE_OBJECTIVE
-    min_success_rate: float = DEFAULT_TUNE_MIN_SUCCESS_RATE
-    min_separation_ratio: float = DEFAULT_TUNE_MIN_SEPARATION_RATIO
-    trials: int = DEFAULT_TUNE_TRIALS
-    batch: int = DEFAULT_TUNE_BATCH
-    sampler: str = DEFAULT_TUNE_SAMPLER
-    enqueue_defaults: bool = True
-
-    def __hash__(self) -> int:  # weights is a dict
-        return hash((tuple(self.weights.items()), self.scenarios, self.seeds,
-                     self.holdout_seeds, self.objective, self.min_success_rate,
-                     self.min_separation_ratio, self.trials, self.batch, self.sampler,
-                     self.enqueue_defaults))
-
-
 def _plain_name(name: str) -> str:
     if not name.strip() or any(ch in name for ch in "/\\\n\r\t\0"):
         raise FieldProblem(f"must be a non-empty name without slashes or control "
@@ -443,42 +371,26 @@ def _plain_name(name: str) -> str:
 
 Name = string(AfterValidator(_plain_name))
 Seed = integer(ge=0, le=MAX_SEED)
-
-
-@dataclass(frozen=True)
-class Config:
-    """A whole experiment, validated and resolved.  ``source`` is where it came from
-    (not part of equality)."""
-
-    name: Name
-    description: str
-    seed: Seed
-    planner: PlannerConfig
-    limits: LimitsConfig
-    sim: SimConfig
-    robots: tuple[RobotConfig, ...]
-    scenario: ScenarioConfig | None
-    sweep: SweepConfig
-    faults: FaultsConfig
-    workspace: WorkspaceConfig = WorkspaceConfig()
-    obstacles: tuple[ObstacleConfig, ...] = ()
-    tune: TuneConfig | None = None  # None: no [tune] table
-    source: str = dataclasses.field(default="<string>", compare=False)
-
-    @property
-    def dim(self) -> int:
-        """N, the number of spatial dimensions."""
-        if self.scenario is not None:
-            return self.scenario.dim
-        return len(self.robots[0].start)
-
-
-TOP_KEYS = ("name", "description", "seed", "planner", "limits", "sim", "robots",
-             "scenario", "sweep", "faults", "workspace", "obstacles", "tune")
-TUNE_KEYS = tuple(f.name for f in dataclasses.fields(TuneConfig))
-ROBOT_KEYS = ("vehicle", "start", "goal", "waypoints", "goal_velocity", "end_state")
 FAULT_KEYS = tuple(FaultsConfig.__dataclass_fields__)
-# Each generator's keys, in the order they are written out (declared in
-# jaxplan/scenarios/generators.py).
-GENERATOR_KEYS: dict[str, tuple[str, ...]] = {
-    kind: params.keys() for kind, params in GENERATOR_PARAMS.items()}
+
+
+def field_type(model: type, name: str) -> Any:
+    """The declared type of a section model's field (bounds included: range_of)."""
+    return typing.get_type_hints(model, include_extras=True)[name]
+
+
+class Bounds(NamedTuple):
+    """A closed range [low, high] of a [planner] weight."""
+
+    low: float
+    high: float
+
+
+def weight_bounds(name: str) -> Bounds:
+    """The closed range [low, high] that [planner] ``name`` (one of TUNABLE_WEIGHTS)
+    accepts, as its field declares it: a [tune] range must lie within it."""
+    if name not in TUNABLE_WEIGHTS:
+        raise ValueError(f"not a tunable weight: {name!r} (tunable: "
+                         f"{', '.join(TUNABLE_WEIGHTS)})")
+    r = range_of(field_type(PlannerConfig, name))
+    return Bounds(float(r.ge), float(r.le))

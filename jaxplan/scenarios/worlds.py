@@ -51,13 +51,13 @@ from jaxplan.fields import (
     number,
 )
 from jaxplan.scenarios.generators import (
-    GeneratorParams,
     _check_count,
     _check_end,
     _check_pos,
     check_seed,
     default_spacing,
 )
+from jaxplan.scenarios.params import GeneratorParams, generates
 from jaxplan.scenarios.scenario import Scenario, ScenarioError, cycle_vehicles, make_scenario
 from jaxplan.vehicles import ROBOTS
 from jaxplan.world import World, point_problems
@@ -66,6 +66,11 @@ _PARAMS_CONFIG = ConfigDict(extra="forbid")
 ObstacleCount = integer(ge=0, le=1000)
 ThreeD = integer(ge=3, le=3)  # the worlds are 3-D (a ground, heights)
 Fraction = number(gt=0.0, lt=1.0)
+# a random_obstacles arena's floor covered by obstacles: below 1e-3 its side (sqrt of
+# the footprints over the density) grows without useful bound
+Density = number(ge=1e-3, lt=1.0)
+# m between pillar rows: a smaller spacing would place more than ~10^4 pillars
+PillarSpacing = number(ge=0.1, le=1e3)
 
 
 def _world(lo, hi, obstacles) -> World:
@@ -87,13 +92,14 @@ class PillarsParams(GeneratorParams):
     dim: ThreeD = None
     half_length: PositiveLength = 5.5
     pillar_radius: PositiveLength = 0.25
-    pillar_spacing: PositiveLength = 2.2
+    pillar_spacing: PillarSpacing = 2.2
     jitter: NonNegativeLength = 0.2
     height: PositiveLength = 4.0
     vehicles: VehicleNames = ("firefly",)
     end_state: EndState = None
 
 
+@generates(PillarsParams)
 def pillars(count: int = 12, seed: int = 0, *, half_length: float = 5.5,
             pillar_radius: float = 0.25, pillar_spacing: float = 2.2, jitter: float = 0.2,
             height: float = 4.0, vehicles: Sequence[str] = ("firefly",),
@@ -140,6 +146,7 @@ class WallGapParams(GeneratorParams):
     end_state: EndState = None
 
 
+@generates(WallGapParams)
 def wall_gap(count: int = 12, seed: int = 0, *, gap: float = 1.5, distance: float = 4.0,
              half_width: float = 5.0, height: float = 3.5, jitter: float = 0.1,
              vehicles: Sequence[str] = ("firefly",), end_state: str = "free",
@@ -188,6 +195,7 @@ class LowCeilingParams(GeneratorParams):
     end_state: EndState = None
 
 
+@generates(LowCeilingParams)
 def low_ceiling(count: int = 10, seed: int = 0, *, radius: float = 4.0, ceiling: float = 2.5,
                 jitter: float = 0.1, vehicles: Sequence[str] = ("firefly",),
                 end_state: str = "free", validate: bool = True) -> Scenario:
@@ -218,7 +226,7 @@ class RandomObstaclesParams(GeneratorParams):
     count: Count = 12
     dim: ThreeD = None
     obstacles: ObstacleCount = 15
-    density: Fraction = 0.08
+    density: Density = 0.08
     height: PositiveLength = 3.5
     min_spacing: PositiveLength = None
     clearance: NonNegativeLength = 0.2
@@ -231,6 +239,7 @@ class RandomObstaclesParams(GeneratorParams):
             default_spacing(self.vehicles), 6))
 
 
+@generates(RandomObstaclesParams)
 def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
                      density: float = 0.08, height: float = 3.5,
                      min_spacing: float | None = None, clearance: float = 0.2,
@@ -246,6 +255,12 @@ def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
     names = cycle_vehicles(vehicles, count)
     spacing = default_spacing(names) if min_spacing is None else _check_pos(
         min_spacing, "min_spacing")
+    rmax = max(ROBOTS[v].radius for v in set(names))
+    if height <= 2.0 * (rmax + clearance) or height < 2.0:
+        raise ScenarioError(f"height: {height} m leaves no room for a robot (radius {rmax} m) "
+                            f"{clearance} m from the floor and the ceiling, nor for the "
+                            f"floating spheres (1 m from each); raise height or lower "
+                            f"clearance", key="height")
     kinds = rng.choice(["cylinder", "box", "sphere"], size=obstacles, p=[0.5, 0.3, 0.2])
     sizes = rng.uniform(0.25, 0.6, size=(obstacles, 3))
     foot = np.where(kinds == "box", 4 * sizes[:, 0] * sizes[:, 1], math.pi * sizes[:, 0] ** 2)
@@ -266,9 +281,13 @@ def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
             obs.append(dict(kind="sphere", center=[*xy, rng.uniform(1.0, height - 1.0)],
                             radius=s[0]))
     world = _world([-half, -half, 0.0], [half, half, height], obs)
-    rmax = max(ROBOTS[v].radius for v in set(names))
     lo = np.array([-half, -half, 0.0]) + rmax + clearance
     hi = np.array([half, half, height]) - rmax - clearance
+    if not np.all(lo < hi):  # no room for a robot's centre between the arena's walls
+        key = "clearance"
+        raise ScenarioError(f"random_obstacles: no room for a robot (radius {rmax} m) "
+                            f"{clearance} m from the arena's faces (side {side:.3g} m, "
+                            f"height {height} m); raise height or lower clearance", key=key)
 
     def draw(placed, avoid_near=None):
         for _ in range(max_tries):
