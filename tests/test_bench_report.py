@@ -142,7 +142,7 @@ def test_the_product_table_states_each_target_and_why_it_is_missed():
     assert "61.0 ms" in big and "median 4, max 23" in big and "117 us" in big
     assert "<= 50 ms: **not met**: 61.0 ms: 520 lane-iterations per replan" in big
     assert "41.5x / 6.2x (references on 2 processes)" in page
-    # where the time goes, where the benchmark measured it (benchmarks.solver._time_split)
+    # where the time goes, where the benchmark measured it (benchmarks.solver_split._time_split)
     prod["fleet10"]["time_split"] = dict(
         lanes_per_device=10, pool=2, shards=1, others_per_nlp=9, evaluations_per_replan=82,
         evaluations_lane_median=8.0, evaluations_lane_max=10, lockstep_steps=8, slot_steps=3,
@@ -249,10 +249,10 @@ def test_bench_command_rewrites_the_readme_block(tmp_path, monkeypatch):
 
 
 def test_the_targets_timings_are_the_median_of_rounds_minutes_apart():
-    """benchmarks.solver._rounds: each case's figure is the median of its rounds of
+    """benchmarks.solver_fleets._rounds: each case's figure is the median of its rounds of
     timings (a slow minute of the shared machine moves one round, not the figure); the
     page shows every round next to the figure."""
-    from jaxplan.benchmarks.solver import _rounds
+    from jaxplan.benchmarks.solver_fleets import _rounds
 
     cases = [{"ms": 9.0}, {"ms": 4.0}, {"ms": 5.0}, {"ms": 3.0}]
     rounds = _rounds(cases, [[6.0, 8.1, 5.2, 3.1], [6.5, 4.2, 9.9, 3.3]])

@@ -279,6 +279,7 @@ def test_each_generator_has_a_parameter_model_with_its_defaults():
     assert set(S.GENERATOR_PARAMS) == set(S.GENERATORS)
     for kind, model in S.GENERATOR_PARAMS.items():
         assert model.kind == kind
+        assert S.GENERATORS[kind] is model.generator and model.generator.__name__ == kind
         args = inspect.signature(S.GENERATORS[kind]).parameters
         assert set(args) - {"seed", "validate"} <= set(model.keys())
         for f in dataclasses.fields(model):

@@ -1,5 +1,5 @@
 """Small shared helpers for the benchmarks: timing with medians (:func:`jaxplan.timing.timed`),
-machine facts, JSON written atomically (:mod:`jaxplan.fileio`)."""
+machine facts, JSON written atomically (:mod:`jaxplan.files`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import statistics
 
 import jax
 
-from jaxplan.fileio import atomic_write_text
+from jaxplan.files import atomic_write_text
 from jaxplan.timing import timed
 
 
@@ -45,8 +45,7 @@ def cpu_line() -> str:
     """``N-core CPU (model, ISA)``: the CPUs this process may run on, the CPU's model name
     and its widest vector instructions (AVX-512 or AVX2).  XLA compiles for the widest
     it finds, so both the speed and the round-off of a compiled program differ between
-    two machines of one model name (an AVX-512 AMD EPYC ran the product's warm 10-robot
-    replan in 3.1-4.5 ms where an AVX2 one took 4.7-7.7 ms)."""
+    two machines of one model name (docs/SOLVER.md, "Speed")."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:

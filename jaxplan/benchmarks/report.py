@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxplan.fileio import atomic_write_text
+from jaxplan.files import atomic_write_text
 
 __all__ = ["markdown", "readme_lines", "replace_readme_block", "write_markdown", "write_readme"]
 
@@ -34,7 +34,7 @@ def _ms(x) -> str:
 
 def _rounds(f: dict, key: str) -> str:
     """`` (rounds a / b / c)``: the figure ``key`` in each round of its timings
-    (benchmarks.solver._rounds), where the JSON has them."""
+    (benchmarks.solver_fleets._rounds), where the JSON has them."""
     r = f.get(f"{key}_rounds")
     if not r or len(r) < 2:
         return ""
@@ -209,7 +209,7 @@ def _product_table(r: dict) -> tuple[list[str], dict[str, str]]:
 
 
 def _split_why(t: dict) -> str:
-    """Where a replan's time goes, from benchmarks.solver._time_split's accounting."""
+    """Where a replan's time goes, from benchmarks.solver_split._time_split's accounting."""
     parts = []
     alone = "step_timed_alone" in t  # steps shared as timed alone (older files: derived)
     without = " without the others' terms" if alone else " without the others"
@@ -291,7 +291,7 @@ def _product(r: dict) -> list[str]:
     intro = ("The product's NLP is the one `jaxplan run` solves with the planner's defaults "
              "(2 quintic segments per axis, 8 coast samples, the default world's ground "
              "z >= 0 as a static row, the default weights, the safety margin, the planner's "
-             "prediction and iteration cap: experiment.structures and fleet_params); the "
+             "prediction and iteration cap: run_setup.structures and fleet_params); the "
              "paper's is 1 segment, no coast, no static row. A 10-robot antipodal fleet: the "
              "cold replan and "
              f"{pr.get('warm_replans', '')} warm replans (the planner's warm start), each "

@@ -6,7 +6,8 @@ A generator's ``[scenario]`` keys are declared once, by the parameter model next
 (:class:`AntipodalSphereParams`, :class:`RandomBoxParams`, :class:`GridSwapParams`,
 :class:`StackedParams`, :class:`AntipodalCircleParams`, field types from
 jaxplan/fields.py): jaxplan/config/ validates a config's ``[scenario]`` table with it,
-and the generator's defaults are the model's.
+the generator's defaults are the model's, and the generator declares the model its own
+(:func:`generates`, jaxplan/scenarios/params.py), by which the model builds its scenario.
 
 Everything here is host-side NumPy (float64), deterministic for a seed: every random
 choice draws from ``numpy.random.default_rng(seed)``.  Units are SI (m, m/s, m/s^2,
@@ -48,7 +49,6 @@ from jaxplan.scenarios.generators import (
     PLACEMENTS,
     AntipodalCircleParams,
     AntipodalSphereParams,
-    GeneratorParams,
     GridSwapParams,
     RandomBoxParams,
     StackedParams,
@@ -66,6 +66,7 @@ from jaxplan.scenarios.paper import (
     paper_six_neos,
     paper_ten_mixed_rest,
 )
+from jaxplan.scenarios.params import GeneratorParams, generates
 from jaxplan.scenarios.registry import (
     GENERATOR_PARAMS,
     GENERATORS,
@@ -98,6 +99,7 @@ __all__ = [
     "PLACEMENTS",
     "default_spacing",
     "GeneratorParams",
+    "generates",
     "AnyGeneratorParams",
     "AntipodalSphereParams",
     "RandomBoxParams",

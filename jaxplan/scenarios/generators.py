@@ -7,10 +7,9 @@ defaults are the model's.  Deterministic for a seed (``numpy.random.default_rng(
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import math
 from collections.abc import Sequence
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 from pydantic import ConfigDict
@@ -32,6 +31,7 @@ from jaxplan.fields import (
     one_of,
     string,
 )
+from jaxplan.scenarios.params import GeneratorParams, generates
 from jaxplan.scenarios.scenario import (
     SAFETY_MARGIN,
     Scenario,
@@ -139,47 +139,13 @@ def _place(rng, count, sample, spacing, max_tries, what, ok=None, chunk=64):
 
 # -------------------------------------------------------------------------- generators
 #
-# Each generator's [scenario] keys are declared once, by the parameter model above it:
-# the config (jaxplan/config/) validates a [scenario] table with that model, and the
-# generator's own defaults are the model's.
+# Each generator's [scenario] keys are declared once, by the parameter model above it
+# (jaxplan/scenarios/params.py): the config (jaxplan/config/) validates a [scenario]
+# table with that model, the generator's own defaults are the model's, and the
+# generator declares the model its own (@generates).
 
 _PARAMS_CONFIG = ConfigDict(extra="forbid")
 PLACEMENTS = ("even", "random")
-
-
-class GeneratorParams:
-    """What the generators' parameter models share.
-
-    A model's fields are its generator's ``[scenario]`` keys, in the order the resolved
-    config writes them.  A default of None is resolved from the other keys by
-    :meth:`resolved` (``dim`` and ``end_state`` by the config: the N of the config's
-    vectors, ``planner.end_state``).
-    """
-
-    kind: ClassVar[str]
-
-    @classmethod
-    def keys(cls) -> tuple[str, ...]:
-        """The ``[scenario]`` keys (besides ``kind``), in declaration order."""
-        return tuple(f.name for f in dataclasses.fields(cls))
-
-    def as_dict(self) -> dict[str, Any]:
-        """The keys and their values, in declaration order."""
-        return {k: getattr(self, k) for k in self.keys()}
-
-    def resolved(self) -> GeneratorParams:
-        """A copy with every None default filled in (needs ``dim`` set)."""
-        return self
-
-    def build(self, seed: int, validate: bool = True) -> Scenario:
-        """The generator's scenario for these parameters (a key the generator does not
-        take, random_box's dim, is left out: its box gives N)."""
-        from jaxplan.scenarios.registry import GENERATORS  # the registry imports this module
-
-        generator = GENERATORS[self.kind]
-        taken = inspect.signature(generator).parameters
-        args = {k: v for k, v in self.as_dict().items() if k in taken}
-        return generator(seed=seed, validate=validate, **args)
 
 
 def default_spacing(vehicles: Sequence[str]) -> float:
@@ -226,6 +192,7 @@ class AntipodalSphereParams(GeneratorParams):
             min_spacing=self.min_spacing or _resolved_spacing(self.vehicles))
 
 
+@generates(AntipodalSphereParams)
 def antipodal_sphere(
     count: int,
     radius: float = AntipodalSphereParams.radius,
@@ -323,6 +290,7 @@ class RandomBoxParams(GeneratorParams):
                                    min_spacing=spacing, goal_spacing=self.goal_spacing or spacing)
 
 
+@generates(RandomBoxParams)
 def random_box(
     count: int,
     box=None,
@@ -404,6 +372,7 @@ class GridSwapParams(GeneratorParams):
         return dataclasses.replace(self, center=self.center or _floats(_grid_center(self.dim)))
 
 
+@generates(GridSwapParams)
 def grid_swap(
     rows: int,
     cols: int,
@@ -478,6 +447,7 @@ class StackedParams(GeneratorParams):
                                    row_center=self.row_center or _floats(_row_center(self.dim)))
 
 
+@generates(StackedParams)
 def stacked(
     count: int,
     spacing: float = StackedParams.spacing,
@@ -550,6 +520,7 @@ class AntipodalCircleParams(GeneratorParams):
             self, center=self.center or _floats(_circle_center(self.dim)))
 
 
+@generates(AntipodalCircleParams)
 def antipodal_circle(
     count: int,
     radius: float = AntipodalCircleParams.radius,

@@ -1,5 +1,7 @@
 """The registry of named scenarios (`jaxplan scenarios`): the paper's four and the
-generators, each built by name with :func:`build`."""
+generators, each built by name with :func:`build`; the generators' kinds -> their
+parameter models (GENERATOR_PARAMS) and their functions (GENERATORS, each the one that
+declared its model)."""
 
 
 from __future__ import annotations
@@ -12,7 +14,6 @@ from typing import Any
 from jaxplan.scenarios.generators import (
     AntipodalCircleParams,
     AntipodalSphereParams,
-    GeneratorParams,
     GridSwapParams,
     RandomBoxParams,
     StackedParams,
@@ -28,6 +29,7 @@ from jaxplan.scenarios.paper import (
     paper_six_neos,
     paper_ten_mixed_rest,
 )
+from jaxplan.scenarios.params import GeneratorParams
 from jaxplan.scenarios.scenario import Scenario, ScenarioError
 from jaxplan.scenarios.worlds import (
     LowCeilingParams,
@@ -64,23 +66,14 @@ PAPER_SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper:ten_mixed_rest": paper_ten_mixed_rest,
 }
 
-GENERATORS: dict[str, Callable[..., Scenario]] = {
-    "antipodal_sphere": antipodal_sphere,
-    "random_box": random_box,
-    "grid_swap": grid_swap,
-    "stacked": stacked,
-    "antipodal_circle": antipodal_circle,
-    "pillars": pillars,
-    "wall_gap": wall_gap,
-    "low_ceiling": low_ceiling,
-    "random_obstacles": random_obstacles,
-}
-
 GENERATOR_PARAMS: dict[str, type[GeneratorParams]] = {
     p.kind: p for p in (AntipodalSphereParams, RandomBoxParams, GridSwapParams, StackedParams,
                         AntipodalCircleParams, PillarsParams, WallGapParams, LowCeilingParams,
                         RandomObstaclesParams)
 }
+# each generator declared its model (jaxplan.scenarios.params.generates)
+GENERATORS: dict[str, Callable[..., Scenario]] = {
+    kind: p.generator for kind, p in GENERATOR_PARAMS.items()}
 AnyGeneratorParams = (AntipodalSphereParams | RandomBoxParams | GridSwapParams | StackedParams
                       | AntipodalCircleParams | PillarsParams | WallGapParams | LowCeilingParams
                       | RandomObstaclesParams)
