@@ -29,7 +29,7 @@ settings: ``--seeds`` seeds each under the ideal backend (a sweep per world), an
 under both backends through `jaxplan run` (the replan times, and the mjx contacts).
 
 ``deadlock``: stalls with and without their resolution (``[planner] deadlock =
-"auto" | "off"``, jaxplan/deadlock.py; "auto", the default, sidesteps at once in the
+"auto" | "off"``, jaxplan/planner/stall.py; "auto", the default, sidesteps at once in the
 plane and after ``sidestep_wait_3d_s`` in 3-D; ``--resolutions sidestep`` adds the
 sidestep without the 3-D wait) on the fleets of experiments/deadlock/
 (planar antipodal circles of 4 to 24 ground robots, exactly symmetric and with a 2 deg
@@ -200,8 +200,7 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
     import tomllib
 
     from jaxplan.config import parse_config
-    from jaxplan.sweep import run_sweep
-    from jaxplan.sweep_csv import read_sweep_csv
+    from jaxplan.sweep import read_sweep_csv, run_sweep
 
     doc = tomllib.loads(base.read_text())
     doc.setdefault("planner", {}).update(planner or {})
@@ -281,7 +280,7 @@ def _sweep_study(a) -> tuple[str, dict]:
 
 def _complete(out: Path, runs: int) -> bool:
     """The sweep directory ``out`` holds ``runs`` finished rows."""
-    from jaxplan.sweep_csv import read_sweep_csv
+    from jaxplan.sweep import read_sweep_csv
 
     return ((out / "sweep.csv").exists()
             and len(read_sweep_csv(out / "sweep.csv", older=True)[0]) >= runs)
@@ -490,7 +489,7 @@ def write_results(out: Path, path: Path = RESULTS) -> Path:
                      f"<!-- /table:{study} -->\n\n<!-- notes:{study} -->\n{notes}\n"
                      f"<!-- /notes:{study} -->\n")
     text = "\n".join(parts)
-    from jaxplan.fileio import atomic_write_text
+    from jaxplan.files import atomic_write_text
 
     return atomic_write_text(path, text)
 

@@ -16,7 +16,7 @@ The paper assumes reliable communication.  Here each observer's view of each sen
   (``"stale"``: the others are told it is still flying its old plan).
 
 Draws come from a JAX PRNG key derived from the run's seed: a run is reproducible.
-The planner's answer to stale information (:mod:`jaxplan.planner`): predictions are
+The planner's answer to stale information (:mod:`jaxplan.planner.views`): predictions are
 advanced by the message's age and the sender's radius is inflated by a_max age^2 / 2;
 a view older than STALE_AFTER_S is taken as a robot holding its last known position,
 inflated by v_max age; inflation is at most MAX_INFLATION (0.5 m).

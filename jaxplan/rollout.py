@@ -31,11 +31,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.deadlock import published_goals
 from jaxplan.faults import CommState, FaultParams, communicate, initial_comm
-from jaxplan.guide import GuideField
 from jaxplan.planner import (
     FleetParams,
+    FleetState,
+    Goals,
+    GuideField,
     PlannerStructure,
     PlanState,
     ReplanInfo,
@@ -44,6 +45,7 @@ from jaxplan.planner import (
     initial_plan_state,
     replan,
 )
+from jaxplan.planner.stall import published_goals
 from jaxplan.pytree import tree_where
 from jaxplan.trajectory import Trajectory
 
@@ -65,7 +67,7 @@ class Task(NamedTuple):
     start: (M, N).  waypoints: (M, W, N).  rest: (M, W) bool (fully defined end state).
     goal_velocity: (M, W, N) (used where ``rest``).  goal_tolerance: () m.
     speed_tolerance: () m/s.  guide: the way round the static world to each goal
-    (:class:`jaxplan.guide.GuideField`, value (W, M, *G)), or None: no guide.
+    (:class:`jaxplan.planner.GuideField`, value (W, M, *G)), or None: no guide.
     """
 
     start: jax.Array
@@ -113,15 +115,15 @@ class StepRecord(NamedTuple):
     comm: jax.Array  # (3,) messages delivered, messages lost, oldest view age (s)
 
 
-def guide_now(task: Task, wp):
-    """The guide of the published waypoint wp for :func:`jaxplan.planner.replan`:
-    (value (M, *G), origin, spacing), or None without a guide."""
+def guide_now(task: Task, wp) -> GuideField | None:
+    """The guide to the published waypoint wp (value (M, *G)), or None without a guide."""
     g = task.guide
-    return None if g is None else (g.value[wp], g.origin, g.spacing)
+    return None if g is None else g._replace(value=g.value[wp])
 
 
-def current_goals(task: Task, wp, reached):
-    """Goal position, velocity and end kind each robot plans to now: (M, N), (M, N), (M,)."""
+def current_goals(task: Task, wp, reached) -> Goals:
+    """The goals each robot plans to now: position, velocity and end kind, (M, N),
+    (M, N), (M,), and the guide to them (:func:`guide_now`)."""
     M = task.start.shape[0]
     idx = jnp.arange(M)
     goal_p = task.waypoints[idx, wp]
@@ -130,7 +132,7 @@ def current_goals(task: Task, wp, reached):
     settled = reached[idx, wp]
     rest = rest | settled
     goal_v = jnp.where(settled[:, None], 0.0, goal_v)
-    return goal_p, goal_v, rest
+    return Goals(goal_p, goal_v, rest, guide_now(task, wp))
 
 
 def executed_pieces(plan: Trajectory, t0, dt):
@@ -160,12 +162,12 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     """One replan period: plan, execute the first period exactly, check goals."""
     M = st.p.shape[0]
     dt = fp.dt
-    goal_p, goal_v, rest = current_goals(task, st.wp, st.reached)
-    # what the robots broadcast: a robot that sidesteps its sub-goal (jaxplan.deadlock)
-    pub = published_goals(st.plans.deadlock, goal_p, goal_v, rest)
+    goals = current_goals(task, st.wp, st.reached)
+    # what the robots broadcast: a robot that sidesteps its sub-goal (jaxplan.planner.stall)
+    pub = published_goals(st.plans.deadlock, goals.goal_p, goals.goal_v, goals.rest)
     comm, views, cstats = exchange(task, st, *pub, structure)
-    plans, info = replan(fp, st.plans, views, st.p, st.v, st.a, goal_p, goal_v, rest,
-                         structure.planner, guide=guide_now(task, st.wp))
+    plans, info = replan(fp, st.plans, FleetState(st.p, st.v, st.a, views), goals,
+                         structure.planner)
     plans = freeze(fp, task, st, plans, structure)
     plan = plans.plan
     p1, v1, a1 = plan.state_at(jnp.broadcast_to(dt, (M,)))
@@ -174,7 +176,7 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     C = structure.checks_per_period
     tau = dt * jnp.arange(1, C + 1) / C  # (C,)
     reached, reach_time, wp = goal_update(
-        fp, task, st, goal_p, plan.sample(tau), jnp.linalg.norm(plan.sample(tau, 1), axis=-1),
+        fp, task, st, goals.goal_p, plan.sample(tau), jnp.linalg.norm(plan.sample(tau, 1), axis=-1),
         st.t + tau, jnp.ones((C,), bool))
     rec = StepRecord(st.t, st.p, st.v, st.a, pt0, pt1, pc, st.wp, info, cstats)
     new = RolloutState(st.t + dt, p1, v1, a1, plans, wp, reached, reach_time, comm)
@@ -198,10 +200,10 @@ def exchange(task: Task, st: RolloutState, goal_p, goal_v, rest, structure: Roll
 def freeze(fp: FleetParams, task: Task, st: RolloutState, plans, structure: RolloutStructure):
     """A robot that stopped responding stops planning (faults only): at its first replan
     from ``frozen_at`` on it brakes to rest within its a_max (the planner's braking plan)
-    and then hovers there.  Its body obeys its limits: a robot flying at 1.45 m/s that
-    stopped dead in one step stood 0.37 m behind the prediction its last message gave the
-    others 0.375 s later, beyond their a_max age^2 / 2 allowance, and was struck
-    (random_box_20, robot 0 frozen at 2 s, seed 2: d / rho 0.63)."""
+    and then hovers there.  Its body obeys its limits: a robot that stopped dead in one
+    step would stand farther behind the prediction its last message gave the others than
+    their a_max age^2 / 2 allowance (docs/SOLVER.md, "Why the planner's safeguards are
+    there")."""
     if not structure.faults:
         return plans
     frozen = task.faults.frozen & (st.t >= task.faults.frozen_at)
@@ -269,10 +271,6 @@ def rollout(fp: FleetParams, task: Task, structure: RolloutStructure):
     return jax.lax.scan(body, st0, None, length=structure.steps)
 
 
-rollout_jit = jax.jit(rollout, static_argnames=("structure",))
-step_jit = jax.jit(step, static_argnames=("structure",))
-
-
 def rollout_batch(fp: FleetParams, task: Task, structure: RolloutStructure,
                   fp_axis=None):
     """A batch of runs: ``task`` (and ``fp`` where ``fp_axis=0``) carry a leading axis.
@@ -288,6 +286,3 @@ def rollout_batch(fp: FleetParams, task: Task, structure: RolloutStructure,
     final, records = jax.lax.scan(lambda st, _: vstep(fp, task, st), st0, None,
                                   length=structure.steps)
     return final, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), records)
-
-
-rollout_batch_jit = jax.jit(rollout_batch, static_argnames=("structure", "fp_axis"))

@@ -124,7 +124,7 @@ def fleet_params(pos, vel, acc, goals, *, rest=False, radius=0.25, w=None, lim=N
 
 
 # fleet_params' array work in compiled programs (once per fleet size): op by op (eager)
-# every new size compiled each of its ~25 operations on its own (~0.5 s a size)
+# every new size would compile each of its ~25 operations on its own
 _select = jax.jit(_planner.select_neighbors, static_argnums=3)
 
 

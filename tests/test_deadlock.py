@@ -1,12 +1,12 @@
-"""Stalls and their resolution (jaxplan/deadlock.py), ground robots, parked robots."""
+"""Stalls and their resolution (jaxplan/planner/stall.py), ground robots, parked robots."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxplan import deadlock as dl
 from jaxplan import metrics as mt
+from jaxplan.planner import stall as dl
 
 DT = 0.125
 _observe = jax.jit(dl.observe)
@@ -188,7 +188,7 @@ SWAP_R = 4.0  # m: four ground robots on a circle swap through its centre, rest 
 
 def _fleet(starts, goals, deadlock, frozen=-1):
     from jaxplan.config import build_scenario, parse_config
-    from jaxplan.experiment import fleet_params, structures, task_of
+    from jaxplan.run_setup import fleet_params, structures, task_of
 
     doc = {"name": "swap", "sim": {"duration_s": 24.0},
            "planner": {"deadlock": deadlock, "max_iters": 30},
@@ -230,7 +230,7 @@ def _swap():
 def swap_runs():
     """The exactly symmetric 4-robot planar swap, without and with the sidestep (one
     compiled replan period: the resolution is a traced switch)."""
-    from jaxplan.experiment import compute_metrics
+    from jaxplan.metrics.report import compute_metrics
 
     starts, goals = _swap()
     out = {}
@@ -292,7 +292,7 @@ def test_parked_robot_goes_on_when_its_goal_is_freed():
     (Two more robots wait far off, so that the shapes are the swap's: the same compiled
     period.)"""
     from jaxplan.config import parse_config  # noqa: F401  (shapes as in _fleet)
-    from jaxplan.experiment import compute_metrics
+    from jaxplan.metrics.report import compute_metrics
 
     starts = np.array([[0.0, 0.0], [3.0, 0.0], [20.0, 0.0], [20.0, 5.0]])
     goals = np.array([[0.0, -4.0], [0.0, 0.0], [20.0, 0.0], [20.0, 5.0]])
@@ -347,7 +347,7 @@ def test_ground_robots_and_the_antipodal_circle():
 
 def test_auto_sidesteps_at_once_in_the_plane_and_after_a_wait_in_3d():
     from jaxplan.config import ConfigError, build_scenario, parse_config
-    from jaxplan.experiment import fleet_params
+    from jaxplan.run_setup import fleet_params
 
     assert dl.resolution_enabled("auto", 2) and dl.resolution_enabled("auto", 3)
     assert dl.resolution_enabled("sidestep", 3) and not dl.resolution_enabled("off", 2)

@@ -104,7 +104,7 @@ def test_solve_batch():
 
 
 def test_run_scenario(tmp_path):
-    from jaxplan.results import load_run
+    from jaxplan.files import load_run
     from tests.conftest import TINY_TOML
 
     ex = load("run_scenario")

@@ -507,13 +507,13 @@ CLEAN = 4  # of which the first CLEAN are not corrupted
 
 @functools.cache
 def _fleet():
-    from jaxplan import experiment as ex
+    from jaxplan import run_setup as rs
     from jaxplan.config import build_scenario, parse_config
 
     cfg = parse_config(tomllib.loads(TINY_TOML), source="tiny.toml")
     sc = build_scenario(cfg)
-    structure = ex.structures(cfg).planner
-    return sc, ex.fleet_params(cfg, sc), structure
+    structure = rs.structures(cfg).planner
+    return sc, rs.fleet_params(cfg, sc), structure
 
 
 O0 = {"xla_backend_optimization_level": 0}  # the same XLA program, LLVM at -O0
@@ -531,7 +531,8 @@ def _compiled(name, fn, *args):
 def _replan_cases(fp, ps, views, p, v, a, gp, gv, rest, structure):
     """Each case through the compiled replan (one fleet per call: compiles faster than a
     vmap over the cases); outputs stacked over the cases."""
-    fn = lambda *args: planner.replan(*args, structure)
+    fn = lambda fp, ps, views, p, v, a, gp, gv, rest: planner.replan(
+        fp, ps, planner.FleetState(p, v, a, views), planner.Goals(gp, gv, rest), structure)
     outs = []
     for c in range(p.shape[0]):
         at = lambda x, c=c: x[c]

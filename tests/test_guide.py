@@ -1,4 +1,4 @@
-"""The guide round walls (jaxplan/guide.py): the segment clearance against dense
+"""The guide round walls (jaxplan/planner/guide.py): the segment clearance against dense
 sampling, the field against exact shortest paths, the guide point, and a ground robot
 behind a wall that reaches its goal through the opening."""
 
@@ -12,7 +12,7 @@ import pytest
 import jaxplan  # noqa: F401  (float64)
 from jaxplan import experiment as ex
 from jaxplan.config import parse_config
-from jaxplan.guide import (
+from jaxplan.planner.guide import (
     grid_distance,
     guide_enabled,
     guide_field,
@@ -96,7 +96,7 @@ def test_field_is_the_shortest_way_round():
     goal = np.array([-3.0, 3.0])
     f = guide_field(w, goal[None, None], np.array([r]), starts=np.array([[4.0, 4.0]]))
     assert f.value.shape == (1, 1, 96, 96)
-    from jaxplan.guide import field_value
+    from jaxplan.planner.guide import field_value
     val = jax.jit(field_value)
     cell = float(np.max(f.spacing))
     for p in ([3.0, 3.0], [1.5, 4.2], [4.0, 1.0]):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from jaxplan import experiment as ex
+from jaxplan import run_setup as rs
 from jaxplan.config import build_scenario, parse_config
 from jaxplan.planner import (
     NEIGHBOR_HORIZON_S,
@@ -97,9 +98,9 @@ count = 8
 def test_run_with_neighbors_is_finite_and_follows_multipliers():
     cfg = parse_config(tomllib.loads(BOX.format(K=3)), source="box_k.toml")
     sc = build_scenario(cfg)
-    st = ex.structures(cfg)
+    st = rs.structures(cfg)
     assert st.planner.max_neighbors == 3
-    fp, task = ex.fleet_params(cfg, sc), ex.task_of(cfg, sc)
+    fp, task = rs.fleet_params(cfg, sc), rs.task_of(cfg, sc)
     f = ex.step_runner(st)
     s = initial_state(task, st)
     assert s.plans.multipliers.collision.shape[-1] == 3

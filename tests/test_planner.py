@@ -11,8 +11,10 @@ import pytest
 
 from jaxplan import experiment as ex
 from jaxplan import metrics as mt
+from jaxplan import run_setup as rs
 from jaxplan import solve
 from jaxplan.config import build_scenario
+from jaxplan.metrics.report import goal_departure
 from jaxplan.planner import (
     ACCEPTED,
     BEST_EFFORT,
@@ -28,8 +30,8 @@ from jaxplan.trajectory import Trajectory
 
 def _setup(cfg):
     sc = build_scenario(cfg)
-    structure = ex.structures(cfg)
-    return sc, structure, ex.fleet_params(cfg, sc), ex.task_of(cfg, sc)
+    structure = rs.structures(cfg)
+    return sc, structure, rs.fleet_params(cfg, sc), rs.task_of(cfg, sc)
 
 
 def test_tiny_run_succeeds_and_is_collision_free(tiny_run):
@@ -52,7 +54,7 @@ def test_goal_departure_after_reaching(tiny_run):
     pos[0, :, 0] = np.where(t < 1.0, 1.0 - t, 0.5 * np.sin(np.pi * (t - 1.0) / 2.0) ** 2)
     pos[1, :, 0] = 5.0
     goal = np.zeros((3, 2))
-    dep = ex.goal_departure(t, pos, goal, np.array([1.0, np.nan, 3.0]))
+    dep = goal_departure(t, pos, goal, np.array([1.0, np.nan, 3.0]))
     assert dep[0] == pytest.approx(0.5) and np.isnan(dep[1]) and dep[2] == 0.0
     # the tiny run: per robot, against the trajectories.npz samples from its time to goal
     m, a = tiny_run.metrics, tiny_run.arrays
@@ -77,7 +79,7 @@ def test_goal_departure_after_reaching(tiny_run):
     assert m["settled_makespan_s"] > m["makespan_s"]
     assert m["max_goal_departure_m"] > 10 * tol
     # and a sweep's row of this run carries both
-    from jaxplan.sweep_batch import SweepPoint, csv_row
+    from jaxplan.sweep import SweepPoint, csv_row
 
     row = csv_row(SweepPoint(1.0, 1.0, "tiny", 0), m)
     assert float(row["settled_makespan_s"]) == m["settled_makespan_s"]
@@ -86,7 +88,7 @@ def test_goal_departure_after_reaching(tiny_run):
 
 def test_plans_last_at_least_two_replan_periods(tiny_run):
     # a plan shorter than that is flown to its end within one period and can brake at
-    # several a_max there (experiment.T_MIN_PERIODS)
+    # several a_max there (run_setup.T_MIN_PERIODS)
     rec = tiny_run.records
     hz = tiny_run.config.planner.replan_hz
     T = np.asarray(rec.piece_t0)[:, :, -1] - np.asarray(rec.t)[:, None]  # the plan's end
@@ -251,10 +253,10 @@ def test_fresh_views_shapes():
 
 
 def test_structure_of_run_does_not_depend_on_duration(tiny_config):
-    s1 = ex.structures(tiny_config)
+    s1 = rs.structures(tiny_config)
     cfg2 = dataclasses.replace(tiny_config, sim=dataclasses.replace(tiny_config.sim,
                                                                     duration_s=3.0))
-    s2 = ex.structures(cfg2)
+    s2 = rs.structures(cfg2)
     assert s1.steps != s2.steps
     assert ex.step_runner(s1) is ex.step_runner(s2)  # one compilation for both
 
@@ -337,14 +339,14 @@ def test_coast_rows_only_where_a_free_end_can_occur():
     import tomllib
 
     from jaxplan.config import parse_config
-    from jaxplan.sweep import _structure
+    from jaxplan.sweep import structure_for as _structure
     from tests.conftest import TINY_TOML
 
     def cfg(end):
         return parse_config(tomllib.loads(TINY_TOML + f'[planner]\nend_state = "{end}"\n'),
                             source="t.toml")
-    assert ex.structures(cfg("free")).planner.nlp.n_coast_samples == 8
-    assert ex.structures(cfg("rest")).planner.nlp.n_coast_samples == 0
+    assert rs.structures(cfg("free")).planner.nlp.n_coast_samples == 8
+    assert rs.structures(cfg("rest")).planner.nlp.n_coast_samples == 0
     assert _structure(cfg("rest"), 3).planner.nlp.n_coast_samples == 8  # a sweep keeps them
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import jaxplan  # noqa: F401  (float64)
-from jaxplan import experiment as ex
 from jaxplan import nlp, planner, solve
+from jaxplan import run_setup as rs
 from jaxplan.config import ConfigError, build_scenario, config_to_toml, parse_config
 from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
 from jaxplan.nlp.terms import STATIC_PRIORITY
@@ -139,13 +139,13 @@ def test_static_kinds_of_structures():
     """A run's NLP forms its world's kinds of static rows (PLANE: the faces and padding);
     the default 3-D world (the ground) PLANE alone; a world without static rows and a
     sweep's grid every kind; NLPStructure refuses kinds it does not know."""
-    from jaxplan.sweep_batch import structure_for
+    from jaxplan.sweep import structure_for
 
-    kinds = lambda text: ex.structures(_cfg(text)).planner.nlp.static_kinds
+    kinds = lambda text: rs.structures(_cfg(text)).planner.nlp.static_kinds
     assert kinds(SELECT.format(K=0)) == ALL_KINDS  # all three obstacle kinds and faces
     assert kinds(BASE) == (CYLINDER, PLANE)
     assert kinds(BASE.split("[[obstacles]]")[0]) == (PLANE,)
-    ground = ex.structures(_cfg(BASE.split("[workspace]")[0])).planner.nlp
+    ground = rs.structures(_cfg(BASE.split("[workspace]")[0])).planner.nlp
     assert ground.n_static == 1 and ground.static_kinds == (PLANE,)
     assert structure_for(_cfg(BASE), 3).planner.nlp.static_kinds == ALL_KINDS
     for bad in ((), (PLANE, BOX), (0, 9)):
@@ -415,7 +415,7 @@ def _selection_setup(K):
     """(PlannerStructure, FleetParams, initial PlanState, starts) of SELECT."""
     cfg = _cfg(SELECT.format(K=K))
     sc = build_scenario(cfg)
-    st, fp = ex.structures(cfg).planner, ex.fleet_params(cfg, sc)
+    st, fp = rs.structures(cfg).planner, rs.fleet_params(cfg, sc)
     p = jnp.asarray(sc.start)
     return st, fp, planner.initial_plan_state(p, st, 3), p
 
@@ -509,10 +509,10 @@ def test_static_multipliers_follow_their_row_across_a_reselection():
 def test_as_many_static_rows_as_the_world_has_is_no_selection():
     """max_static_rows >= R: the same structure (so the same compiled program, the same
     results) as 0, and every NLP holds every row in order with its multipliers in place."""
-    structs = [ex.structures(_cfg(SELECT.format(K=K))) for K in (0, 12, 40)]
+    structs = [rs.structures(_cfg(SELECT.format(K=K))) for K in (0, 12, 40)]
     assert structs[0] == structs[1] == structs[2]
     assert structs[0].planner.nlp.n_static == 12
-    assert ex.structures(_cfg(SELECT.format(K=11))).planner.nlp.n_static == 11
+    assert rs.structures(_cfg(SELECT.format(K=11))).planner.nlp.n_static == 11
     st, fp, ps, p = _selection_setup(12)
     lam = np.random.default_rng(3).uniform(1, 2, ps.multipliers.static.shape)
     ps = ps._replace(multipliers=ps.multipliers._replace(static=jnp.asarray(lam)))

@@ -6,8 +6,8 @@ sees the others as measured.  For its own start state a robot uses its reference
 previous plan evaluated now) while the measurement agrees with it to REF_POS_TOL and
 REF_VEL_TOL, and the measurement otherwise.  Re-planning every period from the measured
 acceleration of a vehicle whose attitude loop lags its reference restarts every plan from
-the lagging state, and the fleet crawls (measured here: 0.15 m travelled in 1.6 s where
-the plan asked for ~2 m); starting from the reference keeps plans continuous while the
+the lagging state, and the fleet crawls (docs/SOLVER.md, "Measurements behind the
+code"); starting from the reference keeps plans continuous while the
 controller removes the tracking error, the usual practice on real quadrotors.  Then the
 SE(3) controllers track the new plans at ``control_hz`` under MJX physics at
 ``physics_hz`` for one period (:func:`jaxplan.sim.fleet.simulate_period`), all vehicles
@@ -30,8 +30,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxplan.deadlock import published_goals
-from jaxplan.planner import FleetParams, fresh_views, replan
+from jaxplan.planner import FleetParams, FleetState, fresh_views, replan
+from jaxplan.planner.stall import published_goals
 from jaxplan.rollout import (
     RolloutState,
     RolloutStructure,
@@ -40,7 +40,6 @@ from jaxplan.rollout import (
     current_goals,
     executed_pieces,
     goal_update,
-    guide_now,
     initial_state,
 )
 from jaxplan.sim import fleet as sf
@@ -73,11 +72,11 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     pick = lambda r, m: jnp.where(agree[:, None], r, m)
     p, v, a = pick(pr, pm), pick(vr, vm), pick(ar, am)
     st = st._replace(t=t, p=p, v=v, a=a)
-    goal_p, goal_v, rest = current_goals(task, st.wp, st.reached)
+    goals = current_goals(task, st.wp, st.reached)
     # the others are seen as measured
-    views = fresh_views(pm, vm, am, *published_goals(st.plans.deadlock, goal_p, goal_v, rest))
-    plans, info = replan(fp, st.plans, views, p, v, a, goal_p, goal_v, rest, structure.planner,
-                         guide=guide_now(task, st.wp))
+    views = fresh_views(pm, vm, am, *published_goals(st.plans.deadlock, goals.goal_p,
+                                                     goals.goal_v, goals.rest))
+    plans, info = replan(fp, st.plans, FleetState(p, v, a, views), goals, structure.planner)
     new_sim, prec = sf.simulate_period(sim, sim_state, plans.plan, 0.0, period_s)
     t1 = sf.sim_time(sim, new_sim)
     pt0, pt1, pc = executed_pieces(plans.plan, t, t1 - t)
@@ -87,7 +86,8 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     speed = jnp.linalg.norm(jnp.concatenate([prec.vel, v_end[:, None]], axis=1), axis=-1)
     times = jnp.concatenate([prec.t, t1[None]])
     valid = jnp.concatenate([prec.valid, jnp.ones((1,), bool)])
-    reached, reach_time, wp = goal_update(fp, task, st, goal_p, pos, speed, times, valid)
+    reached, reach_time, wp = goal_update(fp, task, st, goals.goal_p, pos, speed, times,
+                                         valid)
     rec = MjxRecord(StepRecord(t, p, v, a, pt0, pt1, pc, st.wp, info, jnp.zeros((3,))), prec)
     # t stays the start time of the current plans (the next step measures elapsed time)
     new = RolloutState(t, p_end, v_end, st.a, plans, wp, reached, reach_time, st.comm)

@@ -37,12 +37,10 @@ The world is measured, not collided.  The stepped models carry no geoms at all; 
 MJCF of :func:`jaxplan.sim.model.fleet_xml` with ``world=`` holds the floor, walls and
 obstacles as non-colliding geoms for pictures and the C engine.  A contact with the
 world fails the run (metrics.json), so a contact response would only change what
-happens after the failure, and it is expensive in MJX: measured on the 2-core CPU
-(``jaxplan bench sim``, ``world_cost_*``; one Firefly, the ground and 20 obstacles),
-mjx.step runs 3.3-3.4k steps/s with the geoms colliding (contacts + constraint solver)
-against 28-31k without geoms, and compiles ~4x longer; the per-step distances cost
-0.98-1.08x the time of a world without them (10 vehicles, in scan; within the noise of
-the shared machine).
+happens after the failure, and it is expensive in MJX (contacts and the constraint
+solver, several times the step's time and compile time), where the per-step distances
+cost about nothing (``jaxplan bench sim``'s ``world_cost_*``; docs/SOLVER.md,
+"Measurements behind the code").
 
 Period grid.  Time is kept as an integer count of control ticks (``SimState.tick``).
 A period ends at the first control tick at or after the next multiple of ``period_s``
@@ -62,13 +60,10 @@ Layouts (``init_sim(layout=...)``):
   became non-finite cannot touch the others.
 * ``"fleet"``: one MJX model holding all M bodies; ``mjx.Data`` is the model's.
   MJX factors the whole (6M x 6M) mass matrix, so a non-finite vehicle poisons all.
-* ``"auto"``: ``"vmap"``.  Measured (jaxplan/benchmarks/sim.py, 10 vehicles, 2-core
-  CPU shared with other jobs, float64): one world inside a jitted scan of periods costs
-  the same CPU time in both layouts (38-39x real time by process time; least-contended
-  wall 19x vmap vs 23x fleet, within the machine's noise); 64 worlds: vmap 21k vs fleet
-  14k world-steps/s (CPU time).  vmap also isolates vehicles, and one MJX model holding
-  many drones slows down faster than their number (reported for 128 drones on a 2-core
-  CPU: 8.7 ms per step as one model, 0.86 ms as a vmap of one world per drone).
+* ``"auto"``: ``"vmap"``: one world costs about the same in both layouts, many worlds
+  less as a vmap (jaxplan/benchmarks/sim.py; docs/SOLVER.md, "Measurements behind the
+  code"); vmap also isolates vehicles, and one MJX model holding many drones slows
+  down faster than their number.
 
 Both layouts build their MuJoCo models with :func:`jaxplan.sim.model.fleet_model`
 (``visual=False``: bodies without geoms, exact RotorS inertias) and step with the

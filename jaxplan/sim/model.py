@@ -29,7 +29,8 @@ engine.  Measured (tests/test_sim_model.py; 3 vehicles, 500 Hz, 2 s of sinusoida
 thrust and moments, float64): max |qpos_MJX - qpos_C| is 7e-15 with Euler and 6e-8
 with RK4 (MJX's RK4 is not bit-compatible with C's); with the controller in the loop
 (Euler) 1e-15.  Euler is the default because MJX and C agree to rounding, and it costs
-one dynamics evaluation per step instead of four (MJX: ~5x faster per step here).  Its
+one dynamics evaluation per step instead of four (docs/SOLVER.md, "Measurements behind
+the code", for what a step costs).  Its
 own discretisation error in that open-loop test is 2.2 mm after 2 s against RK4 at
 10 kHz (first order: 1.1 mm at 1 kHz); under feedback it is far below the controller's
 tracking error.  RK4 at 500 Hz is accurate to 2e-12 m there: pick it for accuracy

@@ -1,4 +1,5 @@
-"""Deadlocks: stall detection and the right-hand sidestep (docs/DESIGN.md, [planner]).
+"""Stage 2 of a replan: stall detection and the right-hand sidestep (docs/DESIGN.md,
+[planner] deadlock).
 
 Local NLPs can settle into an equilibrium: a ring of robots that swap across its centre
 stops where every robot's plan keeps clear of the others' predictions through the
@@ -7,40 +8,36 @@ Each robot detects this from its own view and resolves it on its own (decentrali
 deterministic, no random draws).
 
 Detection (:func:`observe`).  Robot i tracks ``best``, the smallest distance to its
-current goal since its progress clock last restarted, and ``since``, the time since
-that distance last fell by at least ``progress`` (m).  It is **stalled** when
+current goal since its progress clock last restarted, and ``since``, the time since that
+distance last fell by at least ``progress`` (m).  It is **stalled** when
 ``since >= window`` (s), it is more than ``progress`` from its goal, its goal is not
-occupied (a robot parked beside an occupied goal waits by design, :mod:`jaxplan.planner`)
-and another robot it sees is within ``near`` (m) of clearance (centre distance minus both
-radii).  The clock restarts when its goal changes, while it sidesteps, and while a robot
-that has been at its goal moves away from it (``best`` follows it: a free end is passed
-at speed, and the way back is measured from the farthest point).  In a *mutual* stall
-(``mutual``: no robot near it is on its way, :func:`progressing`) of a robot that is not
-on its way either (``moving``) the window is ``window_mutual`` (:func:`mutual_window`:
-in 3-D under "auto"), once ``window`` has passed since its goal was set or its last
-sidestep; the sidestep such a stall starts lasts ``hold_mutual`` (:func:`mutual_hold`).
-3-D circles in one plane, makespan / bound, 8 / 16 robots: 2.84 / 3.00 with the window and
-the hold, 2.44 / 2.60 with window_mutual 0.5 s, 2.36 / 2.48 with 0.25 s and hold_mutual
-1.5 s (the defaults; random_box_20's median makespan 8.82 -> 9.11 s).  Without the two
-conditions the short window caught robots that were slow but on their way (the tests'
-tiny swap: 5.34 -> 6.55 s), robots starting from rest and robots turning back to their
-goals after a sidestep (random_box_20: median makespan 8.79 -> 9.17 s, four seeds over
-16 s).
+occupied (a robot parked beside an occupied goal waits by design,
+:func:`jaxplan.planner.goals.free_goals`) and another robot it sees is within ``near``
+(m) of clearance (centre distance minus both radii).  The clock restarts when its goal
+changes, while it sidesteps, and while a robot that has been at its goal moves away from
+it (``best`` follows it: a free end is passed at speed, and the way back is measured
+from the farthest point).  In a *mutual* stall (``mutual``: no robot near it is on its
+way, :func:`progressing`) of a robot that is not on its way either (``moving``) the
+window is ``window_mutual`` (:func:`mutual_window`: in 3-D under "auto"), once
+``window`` has passed since its goal was set or its last sidestep; the sidestep such a
+stall starts lasts ``hold_mutual`` (:func:`mutual_hold`).  The two conditions keep the
+short window from catching robots that are slow but on their way, robots starting from
+rest and robots turning back to their goals after a sidestep (docs/SOLVER.md, "Why the
+planner's safeguards are there").
 
 Resolution (:func:`planning_goals`): a robot that has been stalled for ``wait`` seconds
 (:func:`sidestep_wait`: none in the plane, a few in 3-D, where most stalls are a robot
 waiting for another to pass and end by themselves; none either, with ``mutual``, where no
 robot near it is on its way, :func:`progressing`: a mutual stall, which waiting does not
-end) *sidesteps* for ``hold`` seconds:
-every replan it plans to a sub-goal ``step`` m from where it is, at ``angle`` to the
-right of the direction to its goal (right: clockwise seen from above, +z up; in 3-D the
-right is horizontal), with a rest end there (a position-only end at a sub-goal that
-moves on every replan is chased ever faster: measured, robots of a planar 4-robot swap
-left at 48 m/s).  Being always ``step`` ahead, it is never reached.  With the
-same rule in every robot, robots that meet head on pass each other on the right and a
-stalled ring turns into a roundabout; the sub-goal is what the robot broadcasts as its
-goal while it sidesteps (:func:`published_goals`), so the others predict where it is
-going.  Then it flies to its goal again, and its progress clock starts afresh.
+end) *sidesteps* for ``hold`` seconds: every replan it plans to a sub-goal ``step`` m
+from where it is, at ``angle`` to the right of the direction to its goal (right:
+clockwise seen from above, +z up; in 3-D the right is horizontal), with a rest end there
+(a position-only end at a sub-goal that moves on every replan is chased ever faster).
+Being always ``step`` ahead, it is never reached.  With the same rule in every robot,
+robots that meet head on pass each other on the right and a stalled ring turns into a
+roundabout; the sub-goal is what the robot broadcasts as its goal while it sidesteps
+(:func:`published_goals`), so the others predict where it is going.  Then it flies to
+its goal again, and its progress clock starts afresh.
 
 Broadcast (:func:`broadcast`): with the sidestep enabled (and announce: not in a 3-D
 fleet under "auto", :func:`announces_plan_ends`), each robot broadcasts the end of
@@ -48,6 +45,11 @@ the plan it flies, not only its goal: its sub-goal, the free point beside an occ
 goal, or, when it flies its braking plan, that plan's stopping point at rest (and, when it
 keeps its previous plan, what it broadcast for that plan).  The others' closed-form
 predictions then brake with it instead of flying on to its goal.
+
+In a replan (:func:`jaxplan.planner.replan`): :func:`stall_step` runs the detection for
+the fleet from each robot's own views, :func:`jaxplan.planner.goals.sidestep_goals`
+puts the sub-goals in place of the goals, and :func:`after_replan` records what each
+robot will broadcast.
 
 Everything here is pure and jit-able; parameters are traced (:class:`DeadlockParams`:
 a change does not recompile; ``enabled`` switches the sidestep off, detection stays).
@@ -59,6 +61,19 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+
+from jaxplan.nlp import NLPParams
+from jaxplan.planner.types import (
+    DeadlockParams,
+    DeadlockState,
+    Fallback,
+    FleetParams,
+    FleetState,
+    Goals,
+    PlanState,
+)
+from jaxplan.planner.views import sender_mask
+from jaxplan.trajectory import Trajectory
 
 RESOLUTIONS = ("auto", "sidestep", "off")
 
@@ -94,11 +109,8 @@ def stall_window(window: float | str, dim: int) -> float:
     """The stall window (s) of a fleet in ``dim`` dimensions: ``[planner] stall_window_s``
     as given, or for "auto" (the default) STALL_WINDOW_PLANAR_S in the plane and
     STALL_WINDOW_3D_S in 3-D.  A planar crowd stalls often and resolves each stall only
-    by its sidestep: on planar box 20 (`jaxplan sweep`, seeds 0-79) 1 s arrived in every
-    run (median makespan 15.5 s), where 2 s left a robot short of its goal at 30 s or
-    collided in 4 of the 60 seeds 0-59 (median 17.6 s).  A 3-D fleet mostly
-    leaves a stall through the third dimension by itself, and waits
-    (:func:`sidestep_wait`)."""
+    by its sidestep, the sooner the better; a 3-D fleet mostly leaves a stall through
+    the third dimension by itself, and waits (:func:`sidestep_wait`)."""
     if window == "auto":
         return STALL_WINDOW_PLANAR_S if dim == 2 else STALL_WINDOW_3D_S
     return float(window)
@@ -108,9 +120,7 @@ def mutual_window(resolution: str, dim: int, window: float, window_mutual: float
     """The window of a mutual stall (:func:`observe`): ``window_mutual`` for a 3-D fleet
     under "auto" (the fleets that wait before they sidestep), else ``window`` (the
     fleet's stall window, :func:`stall_window`).  A planar fleet sidesteps at its first
-    stall, after ``window``: with 0.5 s for mutual stalls and 2 s for the others, planar
-    box 20 (20 seeds) left one robot short of its goal at 30 s in 2 seeds (100% with 2 s
-    for both), though planar circles arrived sooner."""
+    stall, after ``window``, mutual or not."""
     return float(window_mutual if _short_mutual(resolution, dim) else window)
 
 
@@ -132,36 +142,9 @@ def announces_plan_ends(resolution: str, dim: int) -> bool:
     """Whether each robot broadcasts the end of the plan it flies (:func:`broadcast`)
     rather than its goal: with the sidestep, except a 3-D fleet under "auto", which
     broadcasts its goals as the paper's planner does (and its sub-goal while it
-    sidesteps): on random_box_20 (`jaxplan sweep`, 20 seeds) the plan ends made the
-    median makespan 9.60 s against 8.77 s, both at 100% success and 0 collisions."""
+    sidesteps): there the plan ends slowed the fleet without making it safer."""
     _check(resolution)
     return resolution == "sidestep" or (resolution == "auto" and dim == 2)
-
-
-class DeadlockParams(NamedTuple):
-    """Traced stall detection and sidestep settings (scalars, or batched for sweeps).
-
-    enabled: () bool, sidestep when stalled.  window: () s.  progress: () m.  near: () m
-    of clearance.  hold: () s of sidestep.  step: () m to the sub-goal.  angle: () rad
-    to the right of the goal direction.  wait: () s a robot stays stalled before it
-    sidesteps.  announce: () bool, broadcast the end of the plan flown (:func:`broadcast`).
-    mutual: () bool, no wait in a mutual stall (:func:`observe`).  window_mutual: () s
-    without progress before a robot in a mutual stall is stalled.  hold_mutual: () s of
-    a sidestep that starts in such a stall (after ``window_mutual``).
-    """
-
-    enabled: jax.Array
-    window: jax.Array
-    progress: jax.Array
-    near: jax.Array
-    hold: jax.Array
-    step: jax.Array
-    angle: jax.Array
-    wait: jax.Array
-    announce: jax.Array
-    mutual: jax.Array
-    window_mutual: jax.Array
-    hold_mutual: jax.Array
 
 
 def default_params(enabled: bool = True, window: float = 2.0, progress: float = 0.2,
@@ -179,36 +162,6 @@ def default_params(enabled: bool = True, window: float = 2.0, progress: float = 
                           jnp.asarray(bool(announce)), jnp.asarray(bool(mutual)),
                           f(window if window_mutual is None else window_mutual),
                           f(hold if hold_mutual is None else hold_mutual))
-
-
-class DeadlockState(NamedTuple):
-    """Each robot's stall memory, (M, ...).
-
-    goal: (M, N) the goal the clock refers to.  best: (M,) m, closest distance to it
-    since the clock restarted.  since: (M,) s since ``best`` last fell by ``progress``.
-    left: (M,) s of sidestep left (> 0: sidestepping).  sub: (M, N) the sub-goal of the
-    last replan.  occupied: (M,) bool, the last replan planned beside an occupied goal.
-    pub_p, pub_v: (M, N), pub_rest: (M,) bool: what the robot broadcasts as its goal at
-    the next replan (:func:`broadcast`) where pub_ok (M,) bool.  arrived: (M,) bool, it
-    has been within ``progress`` of its goal since that goal was set (``best`` then
-    follows it away from the goal).  settled: (M,) s since its goal was set or its
-    last sidestep ended (a mutual stall is one after ``window_mutual`` only once this
-    is ``window``: a robot starting from rest, or turning back to its goal after a
-    sidestep, makes little progress for a while).
-    """
-
-    goal: jax.Array
-    best: jax.Array
-    since: jax.Array
-    left: jax.Array
-    sub: jax.Array
-    occupied: jax.Array
-    pub_p: jax.Array
-    pub_v: jax.Array
-    pub_rest: jax.Array
-    pub_ok: jax.Array
-    arrived: jax.Array
-    settled: jax.Array
 
 
 def initial_state(p, goal=None) -> DeadlockState:
@@ -285,7 +238,7 @@ def observe(ds: DeadlockState, prm: DeadlockParams, dt, p, goal_p, near, mutual=
     # a robot that has been at its goal and drifts away from it (a free end is passed at
     # speed) measures its way back from the farthest point: the clock restarts while it
     # moves away (else the turn back, which cannot come 0.2 m closer than the goal it
-    # passed, counted as a stall: six_neos, every robot)
+    # passed, counted as a stall)
     away = ds.arrived & ~new_goal & (d > ds.best)
     restart = new_goal | improved | side | away
     best = jnp.where(restart, d, ds.best)
@@ -323,9 +276,8 @@ def idle(ds: DeadlockState, prm: DeadlockParams, p, goal_p, near):
     occupied goal and not sidestepping, where the resolution is enabled (ds: the state
     :func:`observe` returned).  Nothing holds such a robot but its own plan: a plan
     whose motion keeps starting later, replan after replan, each warm-started from the
-    last (planar circle 24, seed 9: a robot 4.3 m from a free goal held still from
-    12 s to the end, every solve converged).  The planner starts its next solve from
-    the cold guesses (``PlanState.retry``)."""
+    last, every solve converged.  The planner starts its next solve from the cold
+    guesses (``PlanState.retry``)."""
     d = _goal_distance(p, goal_p)
     return (prm.enabled & (ds.since >= prm.window) & (d > prm.progress) & ~near
             & ~ds.occupied & ~(ds.left > 0))
@@ -360,8 +312,7 @@ def broadcast(ds: DeadlockState, prm: DeadlockParams, planned_p, planned_v, plan
     it keeps its previous plan (``kept``), what it broadcast for that plan.  Without
     ``prm.announce`` (no sidestep, or a 3-D fleet under "auto"): its goal (the planner as
     the paper has it; its sub-goal while it sidesteps).  A robot that brakes while the
-    others are told it flies on is struck (planar circle of 24, seed 2: a robot braked
-    for three replans while broadcasting its goal; d / rho 0.94)."""
+    others are told it flies on can be struck."""
     sel = lambda c, a, b: jnp.where(c.reshape(c.shape + (1,) * (a.ndim - c.ndim)), a, b)  # noqa: E731
     p = sel(braking, stop_p, planned_p)
     v = sel(braking, jnp.zeros_like(planned_v), planned_v)
@@ -385,6 +336,66 @@ def published_goals(ds: DeadlockState | None, goal_p, goal_v, rest):
     goal_p, goal_v, rest = planning_goals(ds, goal_p, goal_v, rest)
     sel = lambda a, b: jnp.where(use.reshape(use.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
     return sel(ds.pub_p, goal_p), sel(ds.pub_v, goal_v), sel(ds.pub_rest, rest)
+
+
+# ------------------------------------------------------------------ the fleet's stage
+
+
+class Stalls(NamedTuple):
+    """The stall stage of a replan (:func:`stall_step`).
+
+    state: the DeadlockState after this replan's detection (its broadcast is recorded
+    after the choice of plans: :func:`after_replan`), or ``PlanState.deadlock`` as it was
+    where the planner has no stall handling.  stalled, sidestep, idle: (M,) bool
+    (:func:`observe`, :func:`idle`), False for padding robots.
+    """
+
+    state: DeadlockState | None
+    stalled: jax.Array
+    sidestep: jax.Array
+    idle: jax.Array
+
+
+def stall_step(fp: FleetParams, ps: PlanState, fleet: FleetState, goals: Goals) -> Stalls:
+    """Stall detection (:func:`observe`, :func:`idle`) for the whole fleet, each robot
+    from its own view: who is near, and whether they are on their way, comes from
+    ``fleet.views``; its own state is fleet.p, fleet.v (M, N), its goal goals.goal_p
+    (M, N).  Without ``fp.deadlock`` (or ``ps.deadlock``): no robot is stalled."""
+    p, v, views, goal_p = fleet.p, fleet.v, fleet.views, goals.goal_p
+    M = p.shape[0]
+    off = jnp.zeros((M,), bool)
+    if fp.deadlock is None or ps.deadlock is None:
+        return Stalls(ps.deadlock, off, off, off)
+    pairs = near_pairs(p, views.p, fp.radius, jnp.broadcast_to(fp.radius, (M, M)),
+                       sender_mask(fp, views), fp.deadlock.near)
+    near = jnp.any(pairs, axis=-1)
+    mutual = ~jnp.any(pairs & progressing(views.p, views.v, views.goal_p, fp.deadlock),
+                      axis=-1)
+    own = progressing(p[:, None], v[:, None], goal_p[:, None], fp.deadlock)[:, 0]
+    ds, stalled, side, _ = observe(ps.deadlock, fp.deadlock, fp.dt, p, goal_p, near,
+                                   mutual, own)
+    lazy = idle(ds, fp.deadlock, p, goal_p, near) & fp.robot_mask
+    stalled, side = stalled & fp.robot_mask, side & fp.robot_mask
+    ds = ds._replace(left=jnp.where(fp.robot_mask, ds.left, 0.0))
+    return Stalls(ds, stalled, side, lazy)
+
+
+def after_replan(fp: FleetParams, stalls: Stalls, moved, params: NLPParams,
+                 plan: Trajectory, fallback) -> DeadlockState | None:
+    """The stall memory carried to the next replan: ``occupied``, the robot planned
+    beside an occupied goal (moved (M,) bool, not while it sidesteps), and what it will
+    broadcast (:func:`broadcast`): the end it planned to (params.goal_p, goal_v, rest),
+    the stopping point of the plan it flies (plan (M,)) where it brakes, what it
+    broadcast before where it keeps its previous plan (fallback (M,): Fallback codes).
+    None where ``stalls.state`` is None."""
+    ds = stalls.state
+    if ds is None:
+        return None
+    ds = ds._replace(occupied=moved & ~stalls.sidestep)
+    # the next broadcast: the end of the plan flown (a braking plan's stopping point)
+    return broadcast(ds, fp.deadlock, params.goal_p, params.goal_v, params.rest,
+                     plan.evaluate(plan.duration), fallback == Fallback.BRAKING,
+                     fallback == Fallback.KEPT_PREVIOUS)
 
 
 # ------------------------------------------------------------------ on the host (metrics)

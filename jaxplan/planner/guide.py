@@ -1,11 +1,11 @@
-"""The way round a wall: a coarse global guide through the static world.
+"""The way round a wall, a coarse global guide through the static world: built on the
+host once per run, used by a replan's goals stage (:mod:`jaxplan.planner.goals`).
 
 Each robot's NLP is local: it bends its plan round the obstacles near the straight line
 to its goal, but a robot whose goal lies behind a wall, with the opening off to one
-side, has no local reason to fly away from its goal to the opening: it hovers at the wall
-(wall_gap, 2 of 20 seeds: a robot pushed behind the wall by the crowd in the gap flew to
-and fro there for 40 s).  The world is static and known, so its way round is computed
-once per run, on the host:
+side, has no local reason to fly away from its goal to the opening: it hovers at the
+wall.  The world is static and known, so its way round is computed once per run, on
+the host:
 
     guide_field(world, waypoints, radius) -> GuideField      numpy, once per run
 
@@ -18,7 +18,8 @@ with an end whose clearance to the static rows is below the robot's planning rad
 costs BLOCKED_COST times its length, so every node has a finite value and the field
 leads out of an obstacle too).
 
-Every replan, in the planner (:func:`guide_goals`, jit-able): a robot whose straight line
+Every replan, in the planner (:func:`guide_goals`, jit-able; applied by
+:func:`jaxplan.planner.goals.guided_goals`): a robot whose straight line
 to its goal passes through an obstacle (the segment's least clearance sd < 0,
 :func:`segment_clearance`: the body itself, not the margin round it, which the NLP
 handles) and whose way round is more than DETOUR_M longer than the grid path in free
@@ -34,8 +35,6 @@ even built ([planner] guide = "auto").
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -43,6 +42,7 @@ from jax.scipy.ndimage import map_coordinates
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from jaxplan.planner.types import GuideField
 from jaxplan.world import BOX, StaticRows, World, signed_distance, static_rows
 
 GUIDE_MODES = ("auto", "on", "off")
@@ -52,22 +52,11 @@ BLOCKED_COST = 100.0  # an edge into or out of a blocked node costs this times i
 SEGMENT_ITERS = 40  # golden-section steps of a segment's clearance (0.618^40 ~ 4e-9)
 # m: the guide is taken only where the way round is this much longer than the grid's
 # free-space path: a pillar on the line is the NLP's to swerve round, a wall is not
-# (random_obstacles, 12 seeds: with every blocked line guided, 10 of 12 arrived and the
-# median makespan rose from 10.1 to 12.4 s)
+# (a rest end ahead slows a robot that its NLP would take round a pillar at speed)
 DETOUR_M = 1.0
 GUIDE_STEPS = 16  # descent steps from the robot
 GUIDE_STEP_M = 0.25  # m per step (so the guide point is at most 4 m ahead)
 GUIDE_EVERY = 4  # candidate guide points: every 4th step (1, 2, 3, 4 m down the field)
-
-
-class GuideField(NamedTuple):
-    """The field (a pytree).  value: (W, M, *GUIDE_CELLS[N]) m, grid path length to robot
-    m's goal of waypoint w from each node.  origin, spacing: (N,) m, node (i, j, k) at
-    origin + spacing * (i, j, k)."""
-
-    value: object
-    origin: object
-    spacing: object
 
 
 def guide_enabled(mode: str, world: World) -> bool:

@@ -1,0 +1,172 @@
+"""A run's inputs from its config (the config adapter): the static structures
+(:class:`jaxplan.rollout.RolloutStructure`, with the planner's and the NLP's), the traced
+fleet parameters (:class:`jaxplan.planner.FleetParams`) and the task (the scenario's
+arrays, its faults, its guide field: :class:`jaxplan.rollout.Task`).
+
+What ``jaxplan run`` (:mod:`jaxplan.experiment`), a sweep's batches and the benchmarks
+build before the first replan.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxplan import solve
+from jaxplan.config import Config, build_scenario
+from jaxplan.faults import FaultParams, no_faults
+from jaxplan.nlp import Limits, NLPStructure, Weights
+from jaxplan.planner import FleetParams, GuideField, PlannerStructure
+from jaxplan.planner.guide import guide_enabled, guide_field
+from jaxplan.planner.stall import (
+    announces_plan_ends,
+    mutual_hold,
+    mutual_window,
+    resolution_enabled,
+    sidestep_wait,
+    stall_window,
+)
+from jaxplan.planner.stall import default_params as deadlock_params
+from jaxplan.rollout import RolloutStructure, Task
+from jaxplan.scenarios import Scenario
+from jaxplan.world import ALL_KINDS, PLANE, StaticRows, World, row_kinds, static_rows
+
+# lower bound on every plan's horizon: two replan periods, so that a plan ends after the
+# next replan.  A shorter one is flown to its end within the period, braking far beyond
+# a_max, and the replans that start from that acceleration can fling the robot away
+# (docs/SOLVER.md, "Why the planner's safeguards are there")
+T_MIN_PERIODS = 2.0
+ACCEPT_VIOLATION = 1e-3  # m^2: largest collision-constraint violation accepted at max-iters
+
+
+def structures(config: Config, *, only_needed: bool = True,
+               n_static: int | None = None,
+               static_kinds: tuple[int, ...] | None = None) -> RolloutStructure:
+    """Static structures of a config (shapes other than M, N, W).
+
+    only_needed: leave out the coast constraints when no robot of the config's own
+    scenario ever has a free end (they would be inactive rows, which cost time).  A sweep,
+    whose grid may hold other scenarios, passes False.  n_static: the world's static rows
+    (obstacles and workspace faces); default: those of the config's own world (a sweep
+    passes the most of its grid); each NLP holds ``max_static_rows`` of them
+    (PlannerStructure.static_slots).
+    static_kinds: the kinds of static rows the NLP's derivatives form
+    (NLPStructure.static_kinds); default: the config's own world's, with PLANE (its
+    workspace faces and the padding rows); a sweep, whose grid may hold other worlds,
+    passes jaxplan.world.ALL_KINDS.
+    """
+    pc = config.planner
+    sc = build_scenario(config)
+    free = ~(np.asarray(sc.rest) | np.asarray(sc.has_goal_velocity))
+    coast = pc.coast_samples if (np.any(free) or not only_needed) else 0
+    R = static_rows(sc.world).mask.shape[0] if n_static is None else n_static
+    # a world of at most max_static_rows rows: no selection (the same program as 0)
+    planner = PlannerStructure(max_neighbors=pc.max_neighbors, solver_pool=pc.solver_pool,
+                               max_static_rows=pc.max_static_rows
+                               if pc.max_static_rows < R else 0)
+    nlp = NLPStructure(
+        n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
+        collision=pc.collision, n_collision_samples=pc.n_samples,
+        n_coast_samples=coast, n_static=planner.static_slots(R),
+        # the kinds matter only to static rows: without, the default (one program)
+        static_kinds=ALL_KINDS if planner.static_slots(R) == 0 else
+        world_kinds(sc.world) if static_kinds is None else tuple(static_kinds),
+    )
+    steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
+    fc = config.faults
+    return RolloutStructure(planner=dataclasses.replace(planner, nlp=nlp),
+                            steps=steps, faults=fc.enabled,
+                            latency_periods=round(fc.latency_s * pc.replan_hz) if fc.enabled
+                            else 0)
+
+
+def world_kinds(world: World) -> tuple[int, ...]:
+    """The kinds of static rows an NLP in ``world`` holds (NLPStructure.static_kinds):
+    its obstacles' and PLANE (its workspace faces, and the padding rows)."""
+    return row_kinds(np.append(static_rows(world).kind, PLANE))
+
+
+def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = None,
+                 n_static: int | None = None) -> FleetParams:
+    """Traced fleet parameters from a config and its scenario (the world's static rows
+    padded to ``n_static``, default exactly its own)."""
+    pc = config.planner
+    w = weights or Weights(*(jnp.asarray(float(x)) for x in
+                             (pc.q_dynm, pc.q_obs, pc.q_lim, pc.k_t, pc.k_p)))
+    lim = Limits(jnp.asarray(scenario.v_max), jnp.asarray(scenario.a_max),
+                 jnp.asarray(scenario.j_max))
+    M = scenario.start.shape[0]
+    window = stall_window(pc.stall_window_s, scenario.dim)
+    # on the device as strongly typed arrays, as every other leaf: a Python scalar leaf
+    # is copied to the device at every call of a compiled step (docs/SOLVER.md)
+    settings = jax.device_put(solve.as_strong_dtypes(solve.SolverSettings(
+        max_iters=pc.max_iters, tol_feasibility=pc.tol, tol_complementarity=pc.tol)))
+    return FleetParams(
+        weights=w, limits=lim, radius=jnp.asarray(scenario.radius) + pc.safety_margin_m,
+        robot_mask=jnp.ones((M,), bool), dt=jnp.asarray(1.0 / pc.replan_hz),
+        t_min=jnp.asarray(T_MIN_PERIODS / pc.replan_hz),
+        prediction_weight=jnp.asarray(pc.k_t / pc.q_dynm),
+        accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
+        static=_static(scenario, n_static),
+        deadlock=deadlock_params(
+            enabled=resolution_enabled(pc.deadlock, scenario.dim), window=window,
+            progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
+            step=pc.sidestep_step_m, angle_deg=pc.sidestep_angle_deg,
+            wait=sidestep_wait(pc.deadlock, scenario.dim, pc.sidestep_wait_3d_s),
+            announce=announces_plan_ends(pc.deadlock, scenario.dim),
+            mutual=pc.sidestep_mutual_at_once,
+            window_mutual=mutual_window(pc.deadlock, scenario.dim, window,
+                                        pc.stall_window_mutual_s),
+            hold_mutual=mutual_hold(pc.deadlock, scenario.dim, pc.sidestep_hold_s,
+                                    pc.sidestep_hold_mutual_s)),
+    )
+
+
+def _static(scenario: Scenario, n_static: int | None):
+    rows = static_rows(scenario.world, n_static)
+    if rows.mask.shape[0] == 0:
+        return None
+    return StaticRows(*(jnp.asarray(a) for a in rows))
+
+
+def task_of(config: Config, scenario: Scenario) -> Task:
+    """Traced task arrays of a scenario."""
+    full = scenario.rest | scenario.has_goal_velocity
+    gv = np.where(scenario.has_goal_velocity[..., None], scenario.goal_velocity, 0.0)
+    return Task(
+        start=jnp.asarray(scenario.start), waypoints=jnp.asarray(scenario.waypoints),
+        rest=jnp.asarray(full), goal_velocity=jnp.asarray(gv),
+        goal_tolerance=jnp.asarray(config.sim.goal_tolerance_m),
+        speed_tolerance=jnp.asarray(config.sim.goal_speed_tolerance_mps),
+        faults=fault_params(config, scenario.start.shape[0]),
+        guide=_guide(config, scenario),
+    )
+
+
+def _guide(config: Config, scenario: Scenario):
+    """The scenario's guide field (jaxplan.planner.guide) where [planner] guide turns it
+    on, or None."""
+    if not guide_enabled(config.planner.guide, scenario.world):
+        return None
+    g = guide_field(scenario.world, scenario.waypoints,
+                    np.asarray(scenario.radius) + config.planner.safety_margin_m,
+                    scenario.start)
+    return GuideField(*(jnp.asarray(a) for a in g))
+
+
+def fault_params(config: Config, M: int) -> FaultParams:
+    """Traced fault settings of a config (all zero when [faults] is off)."""
+    fc = config.faults
+    if not fc.enabled:
+        return no_faults(M)._replace(seed=jnp.asarray(config.seed % 2**32, jnp.uint32))
+    frozen = np.zeros(M, bool)
+    if fc.frozen_robot >= 0:
+        frozen[fc.frozen_robot] = True
+    return FaultParams(jnp.asarray(fc.message_loss), jnp.asarray(fc.noise_sigma_m),
+                       jnp.asarray(frozen), jnp.asarray(fc.frozen_at_s),
+                       jnp.asarray(fc.frozen_mode == "stale"),
+                       jnp.asarray(config.seed % 2**32, jnp.uint32))
