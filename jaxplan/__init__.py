@@ -27,7 +27,7 @@ jax.config.update("jax_enable_x64", True)
 __version__ = "0.1.0"
 
 CPU_DEVICES_ENV = "JAXPLAN_CPU_DEVICES"
-MAX_CPU_DEVICES = 8  # measured with 2 (the 2-core CPU); more is untested
+MAX_CPU_DEVICES = 8  # a cap: more devices than this are untested
 
 
 def env_positive_int(name: str, error: type[Exception] = ValueError) -> int | None:

@@ -6,6 +6,8 @@
         [--engine local|ray [--address ADDR]] [--shard I/N | --merge]
     jaxplan tune CONFIG.toml [--trials N] [--out DIR]   weights searched by Optuna
     jaxplan plot RUN_DIR                        (re)draw a run's figures
+    jaxplan export RUN_DIR --format crazyswarm|mcap [--out DIR] [--height M]
+                                                flights for Crazyflies, a file for Foxglove
     jaxplan bench [solver|predict|sim|all] [--json FILE] [--markdown FILE]
     jaxplan scenarios                           list built-in scenarios
 
@@ -102,6 +104,16 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--readme", type=Path, default=None,
                    help="rewrite this README's benchmark table (solver or all)")
     sub.add_parser("scenarios", help="list built-in scenarios")
+    e = sub.add_parser("export", help="a run as Crazyswarm trajectories or an MCAP file "
+                                      "(docs/HARDWARE.md)")
+    e.add_argument("run_dir", type=Path)
+    e.add_argument("--format", required=True, choices=("crazyswarm", "mcap"), dest="fmt",
+                   help="crazyswarm: one uav_trajectory CSV per robot (at most 31 pieces, "
+                        "within 1 cm); mcap: one .mcap file for Foxglove")
+    e.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="output directory (default: RUN_DIR/crazyswarm; RUN_DIR for mcap)")
+    e.add_argument("--height", type=float, default=None, metavar="M",
+                   help="crazyswarm, planar runs only: the flight height in m (default 1.0)")
     return p
 
 
@@ -194,12 +206,16 @@ def _cmd_run(args) -> int:
 
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, backend=args.backend))
     from jaxplan.experiment import run
-    from jaxplan.results import write_run
+    from jaxplan.files import write_run
 
     out = args.out or Path("runs") / cfg.name
     cache = _use_compile_cache(args.no_cache)
     res = run(cfg, progress=not args.quiet)
-    write_run(res, out, figures=not args.no_figures)
+    write_run(res, out)
+    if not args.no_figures:  # drawn from the files just written (as `jaxplan plot` does)
+        from jaxplan.plots import plot_run
+
+        plot_run(out)
     print(summary(res.metrics, out, cache))
     return 0
 
@@ -294,6 +310,27 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _cmd_export(args) -> int:
+    from jaxplan.export import ExportError, export_run
+
+    try:
+        if args.fmt == "crazyswarm":
+            from jaxplan.export.crazyswarm import table
+
+            report = export_run(args.run_dir, "crazyswarm", args.out, height=args.height)
+            print(table(report))
+            if report["height_m"] is not None:
+                print(f"planar run: flown at z = {report['height_m']:g} m; yaw 0")
+            print(f"wrote {len(report['robots'])} CSVs and export.json in {report['out']}")
+        else:
+            report = export_run(args.run_dir, "mcap", args.out, height=args.height)
+            print(f"wrote {report['file']} ({report['messages']} messages, "
+                  f"{report['bytes'] / 1e6:.1f} MB)")
+    except ExportError as e:
+        raise _Fail(str(e)) from None
+    return 0
+
+
 def _cmd_scenarios(args) -> int:
     from jaxplan.scenarios import SCENARIOS
 
@@ -357,7 +394,7 @@ def main(argv=None) -> int:
         print(f"jaxplan: error: {jaxplan.CPU_DEVICES_ERROR}", file=sys.stderr)
         return 2
     cmds = {"run": _cmd_run, "sweep": _cmd_sweep, "tune": _cmd_tune, "plot": _cmd_plot,
-            "bench": _cmd_bench, "scenarios": _cmd_scenarios}
+            "bench": _cmd_bench, "scenarios": _cmd_scenarios, "export": _cmd_export}
     try:
         return cmds[args.command](args)
     except _Fail as e:

@@ -247,10 +247,10 @@ def _shift(traj: Trajectory, dt) -> Trajectory:
 
 
 # Outside jit, vmap, grad ... (no tracer among the arguments) Trajectory.evaluate and
-# Trajectory.shift run as one compiled program (cached per shape): op by op, the first
-# call at each new shape compiled every operation on its own (~0.5-1 s on a 2-core CPU)
-# and every call traced its vmap again (~40 ms a call, against ~0.1 ms compiled).  Inside
-# a transformation they add their operations to the caller's program, as any function does.
+# Trajectory.shift run as one compiled program (cached per shape): op by op, every
+# operation would compile on its own at each new shape and every call would trace its
+# vmap again (docs/SOLVER.md, "Measurements behind the code").  Inside a transformation
+# they add their operations to the caller's program, as any function does.
 _evaluate_jit = jax.jit(_evaluate, static_argnums=2)
 _shift_jit = jax.jit(_shift)
 

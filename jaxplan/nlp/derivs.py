@@ -185,8 +185,8 @@ def _chain(z, T, parts):
     the local gradient (m, N, K), Hessian (m, N, N, K) and T cross term (m, N, K) of F in
     each group; GT, HTT (K,): its T gradient and curvature.  The local Hessian has no
     blocks between groups (true of the radial terms here), so every (group, sample) pair
-    of every set is a row of one sum, formed by matrix products over the rows (a chain
-    per set cost ~0.09 ms more per 10-lane evaluation of the product NLP on one core)."""
+    of every set is a row of one sum, formed by matrix products over the rows (one sum
+    is faster than a chain per set: docs/SOLVER.md, "Measurements behind the code")."""
     N, nz = z.shape
     jets, local = zip(*(_rows(j, *loc) for j, *loc in parts), strict=True)
     cat = lambda arrays, axis=-1: jnp.concatenate(list(arrays), axis=axis)
@@ -314,9 +314,10 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
     at ONE horizon tau: the values (C,), equal to a vmap of :func:`jaxplan.nlp.terms.merit` over
     the points to rounding.  What depends on tau alone (boundary terms, the other robots'
     positions at the samples) is formed once, and the terms are laid out as in :func:`merit_derivs`
-    (components first): on the benchmark's NLPs (9 others) five shapes cost about what
-    one :func:`jaxplan.nlp.terms.merit` call costs, ~4x less than a vmap of it over the five
-    points (used by :func:`jaxplan.solve.initial_guess`)."""
+    (components first), so that five shapes cost about what one
+    :func:`jaxplan.nlp.terms.merit` call costs, far less than a vmap of it over the five
+    points (used by :func:`jaxplan.solve.initial_guess`; docs/SOLVER.md, "Measurements
+    behind the code")."""
     b = basis(structure)
     T = jnp.exp(tau)
     h = T / structure.segments

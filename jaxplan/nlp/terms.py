@@ -92,7 +92,7 @@ def others_derivs(others: Trajectory, mask, t, R: int):
     if So == 1:  # closed-form predictions: one segment, nothing to look up
         lo, hi = b[None, :, 0], b[None, :, 1]
         ck = c[None, :, 0]  # (1, Mo, N, Kd)
-    else:  # the segment of each time, selected elementwise (a gather was ~5x slower on CPU)
+    else:  # the segment of each time, selected elementwise (a gather was slower on a CPU)
         k = jnp.clip(jnp.sum(b[None, :, 1:So] <= tc[..., None], axis=-1), 0, So - 1)
         sel = [k == i for i in range(So)]
         pick = lambda arr: sum(jnp.where(m, a, 0.0) for m, a in zip(sel, arr, strict=True))

@@ -71,9 +71,9 @@ class NLPStructure:
         static_kinds: the kinds of static rows (jaxplan.world SPHERE, BOX, CYLINDER,
             PLANE; sorted) the derivatives form: only these are computed, and a row of
             another kind has a NaN distance (its lane ends NON_FINITE, never with a wrong
-            one).  Default every kind; :func:`jaxplan.experiment.structures` gives a run
+            one).  Default every kind; :func:`jaxplan.run_setup.structures` gives a run
             its world's kinds (:func:`jaxplan.world.row_kinds`; the 3-D default world, the
-            ground alone: PLANE), which makes a warm 10-robot replan ~16-18% faster.
+            ground alone: PLANE), which makes a warm replan faster (docs/SOLVER.md).
     """
 
     n_dim: int = 3

@@ -36,13 +36,14 @@ from jaxplan.solve.types import (
                                 STATUS_NAMES,
                                 Solution,
                                 SolverSettings,
+                                Status,
                                 zero_multipliers,
 )
 
 __all__ = [
     "CONVERGED", "FEW_OTHERS", "INFEASIBLE", "LINE_SEARCH_FAILED", "LOCKSTEP_MAX", "MAX_ITERS",
     "NON_FINITE", "POOL_CPU", "POOL_CPU_FEW", "POOL_CPU_MANY", "SMALL_BATCH", "STATUS_NAMES",
-    "Solution", "SolverSettings",
+    "Solution", "SolverSettings", "Status",
     "as_strong_dtypes", "default_pool", "default_shards", "direction", "directions",
     "eigh_chunk", "initial_guess", "initial_guess_batch", "pool_steps", "shard_lanes", "solve",
     "solve_batch", "solve_differentiable", "solve_lanes", "swerve_guess", "warm_start",

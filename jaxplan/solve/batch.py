@@ -82,7 +82,7 @@ def solve_batch(params: NLPParams, x0, structure: NLPStructure,
     x0 = None if x0 is None else as_strong_dtypes(x0)
     # the lanes whose x0 is not finite start from initial_guess (as solve() does); it is
     # formed by a call of its own, only when needed, so that the solver's program does
-    # not carry it (~2 s of its ~8-14 s compile time)
+    # not carry it (a part of its compile time: docs/SOLVER.md)
     x_fallback = x0
     if x0 is not None and not np.all(np.isfinite(np.asarray(x0))):
         x_fallback = initial_guess_batch(
@@ -112,10 +112,10 @@ def pack_leaves(tree, alone_bytes: int = PACK_ALONE_BYTES):
     values, dtypes and shapes come back.
 
     Why: a program split over several CPU devices (``shards``) takes each argument
-    replicated on every device, and placing an array that lives on one device costs
-    ~0.1 ms of Python however small it is (jax's resharding of a committed array), a
-    host array far less: the warm 100-robot replan's ~50 arguments cost ~6 ms of its
-    call (docs/SOLVER.md, "Batches: CPU devices")."""
+    replicated on every device, and placing an array that lives on one device costs a
+    fixed amount of Python however small it is (jax's resharding of a committed array),
+    a host array far less: the warm 100-robot replan has ~50 arguments
+    (docs/SOLVER.md, "Batches: CPU devices")."""
     leaves, treedef = jax.tree.flatten(tree)
     host = [np.asarray(v) for v in leaves]
     small = [h for h in host if h.nbytes < alone_bytes]

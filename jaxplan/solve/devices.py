@@ -21,7 +21,7 @@ def as_strong_dtypes(tree):
     def f(a):
         if isinstance(a, jax.Array) and not a.weak_type and a.dtype in _STRONG_DTYPES:
             return a  # already strong: no conversion (a tree map of jnp.asarray over
-            # every leaf cost ~2 ms per call, a fifth of a warm 10-robot replan)
+            # every leaf costs a noticeable part of a warm replan: docs/SOLVER.md)
         if isinstance(a, (bool, int, float, np.ndarray, np.generic)):  # host values:
             a = np.asarray(a)  # NumPy is strongly typed under jit and cheap to convert
             kind = a.dtype.kind
@@ -42,13 +42,8 @@ def default_shards(batch: int, backend: str | None = None) -> int:
     :mod:`jaxplan`), all of them for a batch of more than LOCKSTEP_MAX NLPs, else 1.
     Elsewhere 1 (a GPU steps all lanes of a batch at once).
 
-    Measured on a 2-core CPU (2 devices against 1, the `jaxplan bench solver` NLPs,
-    medians of 5): in one process the 64 x 10 cold batch 1.46x faster, its first 64 NLPs
-    1.37x, 100 robots with 16 neighbours 1.48x warm and 1.63x cold, with all 99 others
-    1.27x warm; in separate processes (JAXPLAN_CPU_DEVICES=1 against the default, twice)
-    the batch 1.46x / 1.22x, 100 cold robots with 16 neighbours 2.4x / 1.5x, 100 warm
-    robots with all others 1.50x / 1.56x.  Warm 10-robot replans stay on one device
-    (split: 0.75x, too little work per device).
+    Large batches run faster split; warm 10-robot replans stay on one device (split,
+    each device has too little work): docs/SOLVER.md, "Batches: CPU devices".
     One XLA program on a CPU runs its kernels one after another; two devices run their
     halves side by side (safe in LAPACK only through :func:`jaxplan.solve.linalg.eigh_safe`)."""
     backend = backend or jax.default_backend()

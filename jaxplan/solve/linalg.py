@@ -113,8 +113,8 @@ def direction_pair(H, grad, reg, convex):
 @lapack_safe
 def newton_cholesky(H, grad, reg):
     """(d, settled) for one H (n, n): the Newton step d = -H^-1 grad by Cholesky (LAPACK
-    potrf and a triangular inverse L^-1, then d = -L^-T L^-1 grad: ~0.2-2 us per 7 x 7 -
-    16 x 16 matrix on a 2-core CPU, against ~6-23 us for syevd), and whether it is
+    potrf and a triangular inverse L^-1, then d = -L^-T L^-1 grad: a small fraction of
+    syevd's time on a CPU, docs/SOLVER.md), and whether it is
     :func:`direction`'s step: H positive definite with lambda_min >= reg * lambda_max,
     so that no eigenvalue is floored.  That is checked without eigenvalues: lambda_max
     <= |H|_F and lambda_min >= 1 / trace(H^-1) = 1 / |L^-1|_F^2.  Where not settled, d
@@ -128,8 +128,7 @@ def newton_cholesky(H, grad, reg):
     settled = pd & (jnp.sum(Li * Li) * jnp.sqrt(jnp.sum(H * H)) * reg <= 1.0)
     # H^-1 = L^-T L^-1 with L^-1 at hand: two small products instead of two more LAPACK
     # calls (triangular solves); steps within ~1e-14 of the solves', the same iterations
-    # on the benchmark's batch, which takes 1.02-1.09x less time (`jaxplan bench solver`,
-    # interleaved A/B, 20 and 24 rounds)
+    # on the benchmark's batch, in less time (docs/SOLVER.md)
     d = -(Li.T @ (Li @ grad))
     return jnp.where(settled & jnp.all(jnp.isfinite(d)), d, 0.0), settled & jnp.all(
         jnp.isfinite(d))
@@ -137,9 +136,8 @@ def newton_cholesky(H, grad, reg):
 
 # directions: matrices per eigh call where Cholesky does not settle it.  On a CPU one
 # (EIGH_CHUNK_CPU): a step seldom has more than one such lane, and a call of two then
-# decomposed a copy as well (the same directions; the bench's warm 10-robot product
-# replans took 0.87-0.96x the time with 1 instead of 2, the cold one 0.93x, a warm
-# 100-robot one 0.93x, the paper's 64 x 10 cold batch 0.92x).  Two (EIGH_CHUNK) under an
+# decomposed a copy as well (the same directions, in more time: docs/SOLVER.md, "One
+# iteration", and "Measurements behind the code").  Two (EIGH_CHUNK) under an
 # outer vmap (a sweep's batch of runs), where a chunk of 1 rounds differently (its
 # batched products are other XLA programs) and the sweeps' rows, the studies' included,
 # would move; and off the CPU, where it was not measured.
@@ -183,7 +181,7 @@ def directions(H, grad, need, reg, convex):
     a cold fleet solve) get :func:`direction`, EIGH_CHUNK_CPU lanes per call on a CPU
     (EIGH_CHUNK elsewhere and under an outer vmap), in a loop that runs as many times as
     they need, so a batch pays an eigendecomposition only for them (on a CPU it costs
-    ~40x the Cholesky).  LAPACK decomposes each matrix alone; the products around it are
+    many times the Cholesky).  LAPACK decomposes each matrix alone; the products around it are
     XLA's, and under an outer vmap they round differently with another chunk."""
     return jax.lax.platform_dependent(
         H, grad, need, reg, convex, cpu=lambda *a: _directions(*a, EIGH_CHUNK_CPU),

@@ -67,14 +67,13 @@ def _pooled(st_all: State, lane_all: Lane, step, C: int, s: SolverSettings) -> S
     in lockstep while more than half of them (and more than C) are active; then the
     rest with C slots (see solve_lanes).
 
-    A step costs a fixed part (XLA's per-kernel overheads: ~0.13 ms on a 2-core CPU)
-    plus a part per lane, active or not.  Lockstep pays the fixed part once for all
+    A step costs a fixed part (XLA's per-kernel overheads) plus a part per lane, active
+    or not.  Lockstep pays the fixed part once for all
     lanes, and wastes the idle lanes' part; slots waste nothing but pay the fixed part
     per C lanes.  So the common first iterations run in lockstep and the stragglers in
     slots (a lane that needs 60 iterations does not hold B - 1 idle lanes for them).
     Larger batches go to the slots at once: there lockstep cost more than it saved
-    (100 cold robots with 16 neighbours, 603 ms vs 281 ms, measured with a step that
-    held a whole line search, so that every lane waited for the slowest backtracking).
+    (docs/SOLVER.md, "Measurements behind the code").
     """
     B = st_all.it.shape[0]
     take = lambda tree, idx: jax.tree.map(lambda a: jnp.take(a, idx, axis=0, mode="clip"), tree)
@@ -150,7 +149,7 @@ def pool_steps(evaluations, pool: int) -> tuple[int, int]:
 
 
 LOCKSTEP_MAX = 32  # batches up to this size start in lockstep (_pooled)
-POOL_CPU = 2  # lanes per step on a CPU (measured on 2 cores: see default_pool)
+POOL_CPU = 2  # lanes per step on a CPU (see default_pool)
 POOL_CPU_FEW = 12  # ... in a batch of more than LOCKSTEP_MAX NLPs with few others each
 POOL_CPU_MANY = 4  # ... in a batch of more than LOCKSTEP_MAX NLPs with more others each
 FEW_OTHERS = 16  # "few": at most this many other robots per NLP
@@ -166,27 +165,15 @@ def default_pool(batch: int, backend: str | None = None, n_others: int | None = 
 
     A pool smaller than the batch puts two copies of the solver step in the program (the
     lockstep one and the slots'); a batch of 3 gains little from the slots, and one copy
-    compiles faster: the 3-robot tiny scenario (examples/tiny.toml, one core) compiled
-    in 20.4 s against 25.1 s with pool 2 and ran its 96 replans in 0.72 s against 0.68
-    s (4 robots: 17.7-18.0 s against 21.5-22.6 s to compile, but 1.24-1.37 s against
-    1.10-1.11 s to run, so a batch of 4 keeps the pool of 2).
-
-    Measured on a 2-core CPU (`jaxplan bench solver` NLPs, each batch split over the two
-    CPU devices, medians of 10 interleaved in one process): the 64 x 10 cold batch (9
-    others) took 218 / 215 / 200 / 190 / 205 ms with pools 6 / 8 / 10 / 12 / 16 per
-    device (in another run 139 / 136 / 140 / 141 / 147 / 155 ms with 8 / 12 / 16 / 24 /
-    32 / 48); 100 robots with 16 neighbours 118 / 107 / 112 ms cold with 4 / 8 / 12 (warm
-    24 / 24 / 24), in another run 163 / 106 / 97 / 121 / 133 ms cold with 2 / 4 / 8 / 16
-    / 32; with all 99 others 310 / 332 / 457 / 619 ms cold with 2 / 8 / 16 / 32 (warm 58
-    / 72 / 81 / 166).  With all 99 others again (AMD EPYC, two warm replans, 50 lanes
-    per device, medians of 8 x 5 interleaved in one process): 59.1 / 49.4 / 53.2 / 53.8 ms
-    with pools 2 / 4 / 6 / 8, in another run 80.5 / 70.5 / 66.9 ms with 2 / 3 / 4: 4 is
-    the best of these, and each lane's results were bitwise those of pool 2 there (not
-    in the planner's closed loop, whose rounding differed from the first replan of a
-    40-robot fleet).  A step costs a fixed
-    part (XLA's per-kernel overheads) plus a part per lane: wide pools share the fixed
-    part, but once the per-lane arrays grow (many others) caches lose.  Warm 10-robot
-    replans: 2.2-2.5 ms for pools 2-10 (they start in lockstep, :func:`_pooled`)."""
+    compiles faster.  A step costs a fixed part (XLA's per-kernel overheads) plus a part
+    per lane: wide pools share the fixed part, but once the per-lane arrays grow (many
+    others) caches lose, so many NLPs with few others each step in a wide pool and with
+    more others in a narrower one.  Warm 10-robot replans start in lockstep
+    (:func:`_pooled`), so their pool matters little.  The sizes are the fastest of the
+    bench's NLPs timed with each (docs/SOLVER.md, "Measurements behind the code"); in
+    solve_batch each lane's results were bitwise those of pool 2 there (not in the
+    planner's closed loop, whose rounding differed from the first replan of a 40-robot
+    fleet)."""
     backend = backend or jax.default_backend()
     if backend != "cpu":
         return batch

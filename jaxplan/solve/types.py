@@ -5,6 +5,7 @@ and the sanitizing of a problem's parameters (docs/SOLVER.md).
 
 from __future__ import annotations
 
+import enum
 import functools
 from typing import NamedTuple
 
@@ -16,7 +17,22 @@ from jaxplan.nlp import Multipliers, NLPParams, NLPStructure
 from jaxplan.pytree import max_all
 from jaxplan.trajectory import Trajectory
 
-CONVERGED, MAX_ITERS, NON_FINITE, INFEASIBLE, LINE_SEARCH_FAILED = 0, 1, 2, 3, 4
+
+class Status(enum.IntEnum):
+    """How a lane's solve ended (``Solution.status``, an int32 array of these values;
+    each is defined in :mod:`jaxplan.solve.alsqp`'s docstring): CONVERGED, MAX_ITERS
+    (the budget spent, constraints satisfied to tolerance), NON_FINITE, INFEASIBLE (the
+    violation stays above tolerance), LINE_SEARCH_FAILED (no Armijo step, and the next
+    iteration would repeat the same search)."""
+
+    CONVERGED = 0
+    MAX_ITERS = 1
+    NON_FINITE = 2
+    INFEASIBLE = 3
+    LINE_SEARCH_FAILED = 4
+
+
+CONVERGED, MAX_ITERS, NON_FINITE, INFEASIBLE, LINE_SEARCH_FAILED = Status
 STATUS_NAMES = {CONVERGED: "converged", MAX_ITERS: "max-iterations", NON_FINITE: "non-finite",
                 INFEASIBLE: "infeasible", LINE_SEARCH_FAILED: "line-search-failed"}
 
