@@ -67,7 +67,8 @@ def structures(config: Config, *, only_needed: bool = True,
     # a world of at most max_static_rows rows: no selection (the same program as 0)
     planner = PlannerStructure(max_neighbors=pc.max_neighbors, solver_pool=pc.solver_pool,
                                max_static_rows=pc.max_static_rows
-                               if pc.max_static_rows < R else 0)
+                               if pc.max_static_rows < R else 0,
+                               prediction=pc.prediction)
     nlp = NLPStructure(
         n_dim=sc.start.shape[1], degree=pc.degree, segments=pc.segments,
         collision=pc.collision, n_collision_samples=pc.n_samples,

@@ -53,6 +53,10 @@ STRUCTURAL = {
     "sim": ("physics_hz", "control_hz"),
     "faults": ("message_loss", "latency_s", "noise_sigma_m", "frozen_robot", "frozen_at_s"),
 }
+# keys of the ORCA baseline ([planner] method = "orca", jaxplan/baselines/orca.py): no
+# compiled program; each accepted bound value runs on a planar fleet
+ORCA = {"planner": ("orca_neighbor_dist_m", "orca_max_neighbors", "orca_time_horizon_s",
+                    "orca_time_horizon_obst_s", "orca_time_step_s")}
 # what a key's walk sets besides it: the rate ratio physics_hz / control_hz stays whole;
 # a run of sim.duration_s = 3600 s at 0.1 Hz is 360 replans
 WALK_BASE = {("sim", "physics_hz"): {"control_hz": 100.0},
@@ -149,9 +153,11 @@ PLAIN_KEYS = [(s, name, r, i) for s, m in SECTIONS.items() for name, r, i in num
 
 
 def test_every_numeric_key_is_classified():
-    """Each numeric key of the plain sections is traced (fast runs) or structural."""
+    """Each numeric key of the plain sections is traced (fast runs), structural or the
+    ORCA baseline's."""
     for s, name, _, _ in PLAIN_KEYS:
-        assert (name in TRACED.get(s, ())) != (name in STRUCTURAL.get(s, ())), (s, name)
+        kinds = [name in group.get(s, ()) for group in (TRACED, STRUCTURAL, ORCA)]
+        assert sum(kinds) == 1, (s, name)
 
 
 @pytest.mark.parametrize("section,key,r,integer", PLAIN_KEYS,
@@ -361,6 +367,19 @@ def test_traced_keys_run_at_their_bounds():
             doc[sec] = {**doc.get(sec, {}), **values}
         result = _run(doc)
         assert result.compile_s == 0.0, (path, v)
+
+
+def test_orca_keys_run_at_their_bounds():
+    """Every accepted bound value of the ORCA baseline's keys runs a planar swap (RVO2;
+    nothing to compile), with finite metrics."""
+    pytest.importorskip("pyrvo")
+    doc = {"name": "bounds_orca", "sim": {"duration_s": 1.0}, "planner": {"method": "orca"},
+           "robots": [{"vehicle": "ground", "start": [0.0, 0.0], "goal": [2.0, 0.0]},
+                      {"vehicle": "ground", "start": [2.0, 0.1], "goal": [0.0, 0.1]}]}
+    for section, keys in ORCA.items():
+        for key in keys:
+            for v in _run_values(section, key):
+                _run(with_value(doc, (section, key), v))
 
 
 STRUCTURAL_RUNS = [

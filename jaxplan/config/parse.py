@@ -89,6 +89,10 @@ def _parse(data: Any, source: str) -> Config:
     if sim.backend == "mjx" and N != 3:
         raise InvalidValue("sim.backend", "'mjx' simulates quadrotors and needs 3-D positions; "
                                           "use 'ideal' for a 2-D config")
+    if planner.method == "orca" and N != 2:
+        raise InvalidValue("planner.method", "'orca' is planar-only for now (RVO2 works in "
+                                             "the plane); give 2-D positions or use "
+                                             "'krishnan'")
     sweep = _section(t, "sweep", SweepConfig, planner=planner, seed=seed)
     workspace = _section(t, "workspace", WorkspaceConfig, dim=N)
     obstacles = _obstacles(t.get("obstacles", []), N)

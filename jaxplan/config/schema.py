@@ -37,6 +37,7 @@ from jaxplan.fields import (
     string,
 )
 from jaxplan.nlp import PLANNER_COLLISION_MODES
+from jaxplan.planner import PREDICTIONS
 from jaxplan.planner.guide import GUIDE_MODES
 from jaxplan.planner.stall import RESOLUTIONS
 
@@ -72,6 +73,17 @@ DEFAULT_DEADLOCK = "auto"                # "auto" | "sidestep" | "off" (detectio
 # the way round a wall (jaxplan/planner/guide.py): "auto" (on in a world with obstacles) |
 # "on" | "off"
 DEFAULT_GUIDE = "auto"
+# what each robot predicts the others will do (jaxplan/planner/views.py): the paper's
+# closed form; "constant_velocity" and "static" are ablations of it
+DEFAULT_PREDICTION = "min_time_jerk"
+# the planner: the paper's ("krishnan"), or the ORCA baseline (jaxplan/baselines/orca.py)
+PLANNER_METHODS = ("krishnan", "orca")
+DEFAULT_METHOD = "krishnan"
+DEFAULT_ORCA_NEIGHBOR_DIST_M = 5.0       # m: ORCA's neighbour distance (RVO2's neighborDist)
+DEFAULT_ORCA_MAX_NEIGHBORS = 10          # RVO2's maxNeighbors
+DEFAULT_ORCA_TIME_HORIZON_S = 2.0        # s: RVO2's timeHorizon (other agents)
+DEFAULT_ORCA_TIME_HORIZON_OBST_S = 2.0   # s: RVO2's timeHorizonObst (obstacles)
+DEFAULT_ORCA_TIME_STEP_S = 0.05          # s: one ORCA step, one linear executed piece
 # s without progress before a robot is stalled; "auto": 1 s for a planar fleet, 2 s in
 # 3-D (jaxplan.planner.stall.stall_window)
 DEFAULT_STALL_WINDOW_S = "auto"
@@ -197,6 +209,13 @@ class PlannerConfig:
     guide "auto" | "on" | "off": a robot whose straight line to its goal passes through
     an obstacle plans to a point of the shortest way round instead (jaxplan/planner/guide.py);
     auto: on in a world with obstacles.
+    prediction "min_time_jerk" | "constant_velocity" | "static": what each robot predicts
+    the others will do (jaxplan/planner/views.py): the paper's closed form, or ablations.
+    method "krishnan" | "orca": the paper's planner, or the ORCA baseline through RVO2
+    (jaxplan/baselines/orca.py; planar fleets), with orca_neighbor_dist_m,
+    orca_max_neighbors, orca_time_horizon_s, orca_time_horizon_obst_s and
+    orca_time_step_s (RVO2's neighborDist, maxNeighbors, timeHorizon, timeHorizonObst and
+    timeStep).
     """
 
     replan_hz: number(ge=MIN_REPLAN_HZ, le=MAX_REPLAN_HZ) = DEFAULT_REPLAN_HZ
@@ -229,6 +248,13 @@ class PlannerConfig:
     stall_window_mutual_s: number(gt=0.0, le=1e4) = DEFAULT_STALL_WINDOW_MUTUAL_S
     sidestep_hold_mutual_s: number(gt=0.0, le=1e4) = DEFAULT_SIDESTEP_HOLD_MUTUAL_S
     guide: string(one_of(GUIDE_MODES)) = DEFAULT_GUIDE
+    prediction: string(one_of(PREDICTIONS)) = DEFAULT_PREDICTION
+    method: string(one_of(PLANNER_METHODS)) = DEFAULT_METHOD
+    orca_neighbor_dist_m: number(gt=0.0, le=MAX_COORD) = DEFAULT_ORCA_NEIGHBOR_DIST_M
+    orca_max_neighbors: integer(ge=1, le=MAX_ROBOTS) = DEFAULT_ORCA_MAX_NEIGHBORS
+    orca_time_horizon_s: number(ge=0.01, le=1e3) = DEFAULT_ORCA_TIME_HORIZON_S
+    orca_time_horizon_obst_s: number(ge=0.01, le=1e3) = DEFAULT_ORCA_TIME_HORIZON_OBST_S
+    orca_time_step_s: number(ge=0.01, le=1.0) = DEFAULT_ORCA_TIME_STEP_S
 
 
 @dataclass(frozen=True, config=SECTION_CONFIG)

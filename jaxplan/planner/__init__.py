@@ -87,6 +87,7 @@ from jaxplan.planner.types import (
 )
 from jaxplan.planner.views import (
     MAX_INFLATION,
+    PREDICTIONS,
     STALE_AFTER_S,
     Predictions,
     fresh_views,
@@ -104,8 +105,9 @@ BEST_EFFORT = Fallback.BEST_EFFORT
 __all__ = [
     "ACCEPTED", "BEST_EFFORT", "BRAKING", "CHECK_HORIZON_S", "CHECK_SAMPLES",
     "GOAL_CLEARANCE", "GOAL_PROJECTIONS", "KEPT_PREVIOUS", "MAX_INFLATION",
-    "NEIGHBOR_HORIZON_S", "NEIGHBOR_SAMPLES", "STALE_AFTER_S", "STATIC_PATH_SAMPLES",
-    "STATIC_PROJECTIONS", "Choice", "DeadlockParams", "DeadlockState", "Fallback",
+    "NEIGHBOR_HORIZON_S", "NEIGHBOR_SAMPLES", "PREDICTIONS", "STALE_AFTER_S",
+    "STATIC_PATH_SAMPLES", "STATIC_PROJECTIONS", "Choice", "DeadlockParams", "DeadlockState",
+    "Fallback",
     "FleetNLPs", "FleetParams", "FleetState", "Goals", "GuideField", "PlanState",
     "PlannerStructure", "Predictions", "ReplanInfo", "Stalls", "Views", "all_others",
     "braking_plan", "choose_plans", "clear_of_static", "fleet_nlps", "free_goals",

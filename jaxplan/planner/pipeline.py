@@ -44,7 +44,7 @@ def replan(fp: FleetParams, ps: PlanState, fleet: FleetState, goals: Goals,
         (new PlanState with every plan starting now, ReplanInfo).
     """
     # 1. views.py: each robot's predictions of the others, from its views
-    preds = view_predictions(fp, fleet.views)
+    preds = view_predictions(fp, fleet.views, structure.prediction)
     # 2. stall.py: who is stalled, who sidesteps
     stalls = stall_step(fp, ps, fleet, goals)
     # 3. goals.py: the end point each robot plans to: its sidestep sub-goal, its guide

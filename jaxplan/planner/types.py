@@ -49,12 +49,17 @@ class PlannerStructure:
     robot's NLP) or K >= 1: each robot's NLP holds only the K rows nearest to where it
     is (:func:`jaxplan.planner.nlps.nearest_static_rows`); ``nlp.n_static`` is then
     :meth:`static_slots` of the world's rows, and ``FleetParams.static`` holds them all.
+    prediction: what each robot predicts the others will do
+    (:data:`jaxplan.planner.views.PREDICTIONS`): "min_time_jerk", the paper's closed form
+    (the default); "constant_velocity" or "static", ablations of it
+    (:func:`jaxplan.planner.views.predict_views`).
     """
 
     nlp: NLPStructure = field(default_factory=NLPStructure)
     max_neighbors: int = 0
     solver_pool: int = 0
     max_static_rows: int = 0
+    prediction: str = "min_time_jerk"
 
     def others(self, M: int) -> int:
         """Other-robot slots in each NLP of an M-robot fleet (M: the fleet, padded): K

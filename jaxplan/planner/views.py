@@ -7,17 +7,19 @@ received from j (:class:`~jaxplan.planner.types.Views`, arrays (M, M, ...) index
 also carry an age and a validity flag, so that stale or missing messages can be
 injected (:mod:`jaxplan.faults`).
 
-From its view each robot predicts the others in closed form (:mod:`jaxplan.predict`),
-advanced by the age of the message it came from.  An old message costs a larger radius
-(at most MAX_INFLATION): a view up to STALE_AFTER_S old is a prediction advanced from
-the sent state, which can be off by what the sender's acceleration could change since,
-a_max age^2 / 2; an older view is a robot holding still, which can be off by how far it
-could have flown since, v_max age.  It is held at the middle of the stretch from its
-last message to where that message predicted it one period later and on to where it
-comes to rest braking from there (it fell silent somewhere on the way, and a robot that
-stops responding brakes to rest: :func:`jaxplan.rollout.freeze`), and it is never taken
-to be known better than that stretch allows: half its length plus a_max dt^2 / 8
-(``floor``; docs/SOLVER.md, "Why the planner's safeguards are there").
+From its view each robot predicts the others in closed form (:mod:`jaxplan.predict`; as
+ablations, ``[planner] prediction``: flying on at constant velocity, or standing still:
+:func:`predict_views`), advanced by the age of the message it came from.  An old message
+costs a larger radius (at most MAX_INFLATION): a view up to STALE_AFTER_S old is a
+prediction advanced from the sent state, which can be off by what the sender's
+acceleration could change since, a_max age^2 / 2; an older view is a robot holding
+still, which can be off by how far it could have flown since, v_max age.  It is held at
+the middle of the stretch from its last message to where that message predicted it one
+period later and on to where it comes to rest braking from there (it fell silent
+somewhere on the way, and a robot that stops responding brakes to rest:
+:func:`jaxplan.rollout.freeze`), and it is never taken to be known better than that
+stretch allows: half its length plus a_max dt^2 / 8 (``floor``; docs/SOLVER.md, "Why the
+planner's safeguards are there").
 """
 
 from __future__ import annotations
@@ -37,6 +39,11 @@ from jaxplan.trajectory import Trajectory
 # mid-course can wall off another robot's goal (docs/SOLVER.md)
 MAX_INFLATION = 0.5
 STALE_AFTER_S = 0.5  # s: an older view is a robot holding its last known position
+# what a robot predicts the others will do ([planner] prediction, PlannerStructure):
+# the paper's closed form, or, as ablations, flying on at constant velocity or standing
+# still (predict_views)
+PREDICTIONS = ("min_time_jerk", "constant_velocity", "static")
+PREDICTION_DEGREE = 5  # the closed-form predictions' degree (one segment)
 
 
 class Predictions(NamedTuple):
@@ -72,21 +79,45 @@ def sender_mask(fp: FleetParams, views: Views):
     return views.valid & ~eye & fp.robot_mask[None, :] & fp.robot_mask[:, None]
 
 
-def predict_views(views: Views, w) -> Trajectory:
-    """Closed-form predictions of every sender from every observer's view: batch (M, M)."""
-    return predict_arrays(views.p, views.v, views.a, views.goal_p, views.goal_v,
-                          jnp.zeros_like(views.p), views.rest, w)
+def predict_views(views: Views, w, prediction: str = "min_time_jerk") -> Trajectory:
+    """Predictions of every sender from every observer's view: batch (M, M).
+
+    prediction (PREDICTIONS; a static choice, ``PlannerStructure.prediction``):
+    "min_time_jerk", the closed-form prediction (:mod:`jaxplan.predict`, degree 5, one
+    segment); "constant_velocity", the sender flies on at the velocity of its view,
+    p + v t, for ever; "static", it holds the position of its view.  The last two are
+    trajectories of the same shape and degree as the first (T = 0: a zero-length
+    segment is a Taylor expansion in seconds, coasting or holding after it), so that
+    everything downstream is unchanged; where such a trajectory ends, where
+    :func:`jaxplan.planner.goals.unoccupied_goals` looks for occupants, is the view's
+    position.  Non-finite views become a hold at the finite part of the position, as
+    the closed form's do.
+    """
+    if prediction == "min_time_jerk":
+        return predict_arrays(views.p, views.v, views.a, views.goal_p, views.goal_v,
+                              jnp.zeros_like(views.p), views.rest, w)
+    if prediction not in PREDICTIONS:
+        raise ValueError(f"prediction must be one of {PREDICTIONS}, got {prediction!r}")
+    ok = jnp.all(jnp.isfinite(views.p), axis=-1) & jnp.all(jnp.isfinite(views.v), axis=-1)
+    p = jnp.where(jnp.isfinite(views.p), views.p, 0.0)
+    held = Trajectory.hold(p, PREDICTION_DEGREE, 1)
+    if prediction == "static":
+        return held
+    v = jnp.where(ok[..., None], views.v, 0.0)
+    return Trajectory(held.coeffs.at[..., 0, :, 1].set(v), held.breaks, ok)
 
 
-def view_predictions(fp: FleetParams, views: Views) -> Predictions:
-    """The others' predictions from each robot's views, advanced to now by the message's
-    age (module docstring).  A view older than STALE_AFTER_S is taken as a robot holding
-    its last known position; ``inflate`` is how far the other could be from where its
-    view puts it, ``floor`` the part of it that a held robot is certainly within."""
+def view_predictions(fp: FleetParams, views: Views,
+                     prediction: str = "min_time_jerk") -> Predictions:
+    """The others' predictions from each robot's views (:func:`predict_views` of the
+    kind ``prediction``), advanced to now by the message's age (module docstring).  A
+    view older than STALE_AFTER_S is taken as a robot holding its last known position;
+    ``inflate`` is how far the other could be from where its view puts it, ``floor``
+    the part of it that a held robot is certainly within."""
     # an age from the future counts as 0, an unknown (NaN) age as infinitely old
     age = jnp.where(jnp.isnan(views.age), jnp.inf, jnp.maximum(views.age, 0.0))
     fresh = age <= STALE_AFTER_S
-    preds0 = predict_views(views, fp.prediction_weight)
+    preds0 = predict_views(views, fp.prediction_weight, prediction)
     preds = preds0.shift(jnp.where(fresh, age, 0.0))
     # a silent robot stopped somewhere between its last message and where it comes to
     # rest braking (as braking_plan does) from the next one due, one period later along
