@@ -4,6 +4,7 @@
     jaxplan run CONFIG.toml [--out DIR]        one experiment -> a run directory
     jaxplan sweep CONFIG.toml [--out DIR]      a grid of weights x scenarios x seeds
         [--engine local|ray [--address ADDR]] [--shard I/N | --merge]
+    jaxplan rerun SWEEP_DIR ROW [--out DIR]    a sweep.csv row as a full run directory
     jaxplan tune CONFIG.toml [--trials N] [--out DIR]   weights searched by Optuna
     jaxplan plot RUN_DIR                        (re)draw a run's figures
     jaxplan export RUN_DIR --format crazyswarm|mcap [--out DIR] [--height M]
@@ -62,8 +63,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, default=None,
                    help="sweep directory (default: sweeps/<name>)")
     s.add_argument("--batch", type=int, default=None,
-                   help="runs per batched computation (default: one per CPU device on a CPU, "
-                        "split over the devices; 27 on a GPU)")
+                   help="runs at a time (default: one per CPU device on a CPU, each its "
+                        "own one-run program: the rows do not depend on it; 27 vmapped on a "
+                        "GPU)")
     s.add_argument("--engine", choices=("local", "ray"), default=None,
                    help="where the batches run: this process (local) or Ray tasks (ray; "
                         "needs jaxplan[ray]); default: [sweep] engine, else local")
@@ -80,6 +82,16 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--no-cache", action="store_true",
                    help="do not use the compilation cache (see JAXPLAN_CACHE_DIR)")
+    rr = sub.add_parser("rerun", help="re-run a sweep.csv row as a full run (its metrics "
+                                      "bitwise the row's)")
+    rr.add_argument("sweep_dir", type=Path, help="a sweep directory")
+    rr.add_argument("row", type=int, help="the row's index in sweep.csv (0-based, the "
+                                          "header not counted)")
+    rr.add_argument("--out", type=Path, default=None,
+                    help="run directory (default: SWEEP_DIR/runs/row-ROW)")
+    rr.add_argument("--no-figures", action="store_true", help="skip the figures and animation")
+    rr.add_argument("--no-cache", action="store_true",
+                    help="do not use the compilation cache (see JAXPLAN_CACHE_DIR)")
     t = sub.add_parser("tune", help="search the [tune] weights for the objective (resumable)")
     t.add_argument("config", type=Path, help="TOML file with a [tune] table")
     t.add_argument("--trials", type=int, default=None,
@@ -87,8 +99,8 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--out", type=Path, default=None,
                    help="tune directory (default: tunes/<name>)")
     t.add_argument("--batch", type=int, default=None,
-                   help="runs per batched computation (default: 1 on a CPU, 27 on an "
-                        "accelerator; or JAXPLAN_SWEEP_BATCH)")
+                   help="runs at a time (default: one per CPU device on a CPU, each its "
+                        "own program; 27 vmapped on an accelerator; or JAXPLAN_SWEEP_BATCH)")
     t.add_argument("--no-figures", action="store_true", help="skip the figures")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.add_argument("--no-cache", action="store_true",
@@ -365,6 +377,19 @@ def _cmd_sweep(args) -> int:
     return 0
 
 
+def _cmd_rerun(args) -> int:
+    from jaxplan.sweep import SweepError
+    from jaxplan.sweep.rerun import rerun_row
+
+    cache = _use_compile_cache(args.no_cache)
+    try:
+        res = rerun_row(args.sweep_dir, args.row, args.out, figures=not args.no_figures)
+    except SweepError as e:
+        raise _Fail(str(e)) from None
+    print(summary(res.metrics, res.out, cache))
+    return 0
+
+
 def _cmd_tune(args) -> int:
     cfg = _load(args.config)
     from jaxplan.tune import TuneError, run_tune
@@ -393,7 +418,8 @@ def main(argv=None) -> int:
     if jaxplan.CPU_DEVICES_ERROR:
         print(f"jaxplan: error: {jaxplan.CPU_DEVICES_ERROR}", file=sys.stderr)
         return 2
-    cmds = {"run": _cmd_run, "sweep": _cmd_sweep, "tune": _cmd_tune, "plot": _cmd_plot,
+    cmds = {"run": _cmd_run, "sweep": _cmd_sweep, "rerun": _cmd_rerun, "tune": _cmd_tune,
+            "plot": _cmd_plot,
             "bench": _cmd_bench, "scenarios": _cmd_scenarios, "export": _cmd_export}
     try:
         return cmds[args.command](args)

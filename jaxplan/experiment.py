@@ -209,8 +209,14 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
         progress: say on stderr that the planner compiles, then show progress over
             replans from the first one (a tqdm bar on a terminal, a line every 30 s
             otherwise: jaxplan.progress).
+    ``[planner] method = "orca"``: the ORCA baseline (jaxplan/baselines/orca.py).
     """
     scenario = build_scenario(config)
+    if config.planner.method == "orca":
+        from jaxplan.baselines.orca import run_orca
+
+        metrics, arrays, records, run_s = run_orca(config, scenario, progress=progress)
+        return RunResult(config, scenario, metrics, arrays, records, 0.0, run_s)
     structure = structures(config)
     fp = fleet_params(config, scenario)
     task = task_of(config, scenario)

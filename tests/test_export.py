@@ -1,8 +1,8 @@
 """`jaxplan export`: Crazyswarm CSVs read back as Crazyswarm reads them, within 1 cm of
 the executed pieces in at most 31 pieces; an MCAP file read back with the mcap reader.
 
-The synthetic runs below are written by hand (no JAX); one paper scenario (six_neos)
-runs once per module for the fast tier, the other three in the slow tier.
+The synthetic runs below are written by hand (no JAX); the tiny scenario's planner run
+(conftest's, shared) in the fast tier, the four paper scenarios in the slow tier.
 """
 
 import json
@@ -281,24 +281,23 @@ def _paper_run(name, out):
     return write_run(run(load_config(ROOT / "experiments" / "paper" / f"{name}.toml")), out)
 
 
-@pytest.fixture(scope="module")
-def six_neos(tmp_path_factory):
-    """The paper's six_neos, run once for this module (ideal backend, no figures)."""
-    return _paper_run("six_neos", tmp_path_factory.mktemp("paper") / "six_neos")
+def test_a_planner_run_exports(tiny_run, tmp_path):
+    """The tiny scenario's planner run (shared with the other tiny-scenario tests: one
+    compilation), both formats read back as their consumers read them."""
+    from jaxplan.files import write_run
 
-
-def test_paper_six_neos_exports(six_neos, tmp_path):
-    assert main(["export", str(six_neos), "--format", "crazyswarm",
+    run_dir = write_run(tiny_run, tmp_path / "tiny")
+    assert main(["export", str(run_dir), "--format", "crazyswarm",
                  "--out", str(tmp_path / "cs")]) == 0
-    rows = check_crazyswarm(six_neos, tmp_path / "cs")
-    assert len(rows) == 6
+    rows = check_crazyswarm(run_dir, tmp_path / "cs")
+    assert len(rows) == len(tiny_run.metrics["per_robot"])
     pytest.importorskip("mcap")
-    report = export_run(six_neos, "mcap", tmp_path / "mcap")
-    check_mcap(six_neos, report["file"])
+    report = export_run(run_dir, "mcap", tmp_path / "mcap")
+    check_mcap(run_dir, report["file"])
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", PAPER[1:])
+@pytest.mark.slow  # the four paper scenarios, ~40 s each: `make test-slow`
+@pytest.mark.parametrize("name", PAPER)
 def test_paper_exports(name, tmp_path):
     run_dir = _paper_run(name, tmp_path / name)
     export_run(run_dir, "crazyswarm", tmp_path / "cs")

@@ -366,14 +366,12 @@ def test_sigkill_then_resume_gives_the_same_rows(sweep_env, uninterrupted):
     assert resumed == _rows(whole / "sweep.csv")
 
 
-@pytest.mark.slow  # a second compilation, split over two devices: `make test-slow`
-def test_split_over_two_devices_runs_every_row_once(sweep_env, uninterrupted):
-    """Each batch of 2 runs split over two CPU devices (jaxplan.sweep.batch.cpu_shards): one
-    compilation, every (weights, seed) row once, as the one-device sweep.  The rows'
-    floats are not compared: XLA vectorizes one lane and two differently, and the closed
-    loop grows the last-bit differences (measured: a min d/rho of 1.314 split, 1.201 on
-    one device, both without a collision); the split itself gives the one-device
-    results solve by solve (tests/test_solver_devices.py)."""
+@pytest.mark.slow  # a child on two CPU devices: `make test-slow`
+def test_two_cpu_devices_and_two_runs_in_flight_give_the_one_device_rows(sweep_env,
+                                                                          uninterrupted):
+    """Two runs in flight (two threads calling the one-run program) in a process of two
+    CPU devices: one compilation, and the one-device sweep's rows, every cell equal
+    (docs/SWEEPS.md, "Same rows on every engine")."""
     d, cfg, env = sweep_env
     whole, _ = uninterrupted
     out = d / "two_devices"
@@ -381,13 +379,10 @@ def test_split_over_two_devices_runs_every_row_once(sweep_env, uninterrupted):
                        env=dict(env, JAXPLAN_CPU_DEVICES="2", JAXPLAN_SWEEP_BATCH="2"),
                        timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert "compilations: 1" in r.stdout, r.stdout
+    assert "compilations: 1" in r.stdout and "in batches of 2" in r.stdout, r.stdout
     split, one = _rows(out / "sweep.csv"), _rows(whole / "sweep.csv")
     assert len(split) == len(one) == 4
-    for a, b in zip(split, one, strict=True):
-        for c in ("q_obs", "q_lim", "scenario", "seed", "robots", "replans", "error"):
-            assert a[c] == b[c], c
-        assert np.isfinite(float(a["min_separation_ratio"]))
+    assert split == one
 
 
 @pytest.mark.slow
@@ -411,8 +406,10 @@ def test_mixed_fleet_sizes_share_one_compilation(tmp_path):
     got = rows["stacked"]
     for c in ("success", "collisions", "reached_frac", "waypoints_frac", "error"):
         assert got[c] == ref[c], c
+    # padded, another program (other shapes): the same run to round-off, which the closed
+    # loop grows (measured: 2.1e-5 relative in peak_speed_ratio)
     for c in ("min_separation_ratio", "peak_speed_ratio"):
-        assert float(got[c]) == pytest.approx(float(ref[c]), rel=1e-6, abs=1e-9), c
+        assert float(got[c]) == pytest.approx(float(ref[c]), rel=1e-4, abs=1e-9), c
 
 
 def test_the_batch_structure_forms_the_kinds_the_grid_needs():

@@ -1,7 +1,8 @@
-"""jaxplan sweep beyond one process: the same small grid run by the local engine, by the
-Ray engine (a local instance of 2 workers, one of them SIGKILLed mid-sweep) and as 2
-shards + merge gives the same rows; the shard, merge, lock and option plumbing on
-made-up rows."""
+"""jaxplan sweep beyond one process: the same grid run by the local engine in batches of
+1, 2 and 4, by the Ray engine (a local instance of 2 workers, one of them SIGKILLed
+mid-sweep) and as shards + merge gives the same rows, bitwise; `jaxplan rerun` of a row
+gives its metrics bitwise; the shard, merge, lock and option plumbing on made-up
+rows."""
 
 from __future__ import annotations
 
@@ -21,9 +22,22 @@ from jaxplan.config import ConfigError, parse_config
 from tests._proc import ROOT, jaxplan_cmd
 from tests.test_sweep import SWEEP_TOML
 
-FLOAT_COLUMNS = ("min_separation_ratio", "makespan_s", "mean_time_to_goal_s", "reached_frac",
-                 "waypoints_frac", "peak_speed_ratio", "converged_frac", "iterations_median",
-                 "duration_s", "settled_makespan_s", "max_goal_departure_m")
+# the issue's 4-point sweep: (q_obs 5, q_lim 1) once succeeded with min d/rho 1.626 on
+# the local engine (a batch of two runs split over two CPU devices) and failed with
+# 1.419 on Ray (one run on one device)
+FOUR_POINTS_TOML = """
+name = "sweep4"
+seed = 0
+[sim]
+duration_s = 6.0
+[scenario]
+kind = "antipodal_sphere"
+count = 3
+radius = 2.0
+[sweep]
+q_obs = [5.0, 20.0]
+q_lim = [1.0, 4.0]
+"""
 
 
 def _config(text=SWEEP_TOML):
@@ -40,14 +54,11 @@ def _read(path: Path) -> dict:
 
 
 def _assert_same_rows(got: dict, ref: dict):
-    """Same keys; every cell equal, floats to round-off."""
+    """Same keys; every cell equal (bitwise: floats are written with repr)."""
     assert sorted(got) == sorted(ref)
     for k, r in ref.items():
         for c, v in r.items():
-            if c in FLOAT_COLUMNS and v and got[k][c]:
-                assert float(got[k][c]) == pytest.approx(float(v), rel=1e-9, abs=1e-12), (k, c)
-            else:
-                assert got[k][c] == v, (k, c)
+            assert got[k][c] == v, (k, c, got[k][c], v)
 
 
 # ----------------------------------------------------------------------------- no JAX
@@ -189,15 +200,13 @@ def test_shards_starting_together_share_config_toml(tmp_path):
 
 @pytest.fixture(scope="module")
 def engines_env(tmp_path_factory):
-    """The tiny sweep with one run per batch on one CPU device, as a Ray task runs it,
-    so that every engine runs the same program: compiled once, in this process (the
-    local run; the shards reuse it), and loaded by the Ray workers from the test
-    session's compilation cache (tests/conftest.py)."""
+    """The tiny sweep: its one-run program compiled once, in this process (the local
+    run; the shards reuse it), and loaded by the Ray workers from the test session's
+    compilation cache (tests/conftest.py)."""
     d = tmp_path_factory.mktemp("engines")
     cfg = d / "tiny_sweep.toml"
     cfg.write_text(SWEEP_TOML)
-    env = dict(os.environ, JAXPLAN_SWEEP_BATCH="1", JAXPLAN_CPU_DEVICES="1",
-               JAXPLAN_RAY_CPUS="2")
+    env = dict(os.environ, JAXPLAN_CPU_DEVICES="1", JAXPLAN_RAY_CPUS="2")
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     return d, cfg, env
 
@@ -216,6 +225,49 @@ def local_rows(engines_env):
     rows = _read(d / "local" / "sweep.csv")
     assert len(rows) == 8
     return rows
+
+
+def test_batch_sizes_and_three_shards_give_the_same_rows_and_reruns_the_row(
+        tmp_path):
+    """The 4-point sweep in this process (one device: conftest) with --batch 1 and 4, and
+    as three shards of batches of 2 + merge: every cell equal; `jaxplan rerun` of rows
+    0, 2 and 3: their metrics bitwise the row's, a full run directory.  One compilation for all (the
+    one-run program); two CPU devices give these rows too (test_sweep.py, slow)."""
+    from jaxplan.cli import main
+    from jaxplan.files import load_run
+    from jaxplan.sweep.rerun import rerun_row
+
+    cfg = tmp_path / "sweep4.toml"
+    cfg.write_text(FOUR_POINTS_TOML)
+    _sweep(cfg, tmp_path / "b1", "--batch", "1")
+    ref = _read(tmp_path / "b1" / "sweep.csv")
+    assert len(ref) == 4
+    _sweep(cfg, tmp_path / "b4", "--batch", "4")
+    _assert_same_rows(_read(tmp_path / "b4" / "sweep.csv"), ref)
+    for i in range(3):  # batches of 2 in each shard
+        _sweep(cfg, tmp_path / "shards", "--batch", "2", "--shard", f"{i}/3")
+    _sweep(cfg, tmp_path / "shards", "--merge")
+    _assert_same_rows(_read(tmp_path / "shards" / "sweep.csv"), ref)
+
+    for row in (0, 2):  # the first and a later row; row 3 through the command below
+        res = rerun_row(tmp_path / "b1", row, tmp_path / f"row{row}", figures=False, echo=None)
+        assert res.differ == [], res.differ
+    run = load_run(tmp_path / "row0", complete=True)
+    m = run.metrics
+    with open(tmp_path / "b1" / "sweep.csv", newline="") as f:
+        first = next(csv.DictReader(f))
+    assert repr(m["min_separation_ratio"]) == first["min_separation_ratio"]
+    assert ("1" if m["success"] else "0") == first["success"]
+    text = (tmp_path / "row0" / "config.toml").read_text()
+    assert f"q_obs = {first['q_obs']}" in text and f"q_lim = {first['q_lim']}" in text
+    # the command: figures and animation unless --no-figures; a row that is not there
+    assert main(["rerun", str(tmp_path / "b1"), "3", "--out", str(tmp_path / "cli")]) == 0
+    m3 = load_run(tmp_path / "cli", complete=True).metrics
+    with open(tmp_path / "b1" / "sweep.csv", newline="") as f:
+        row3 = list(csv.DictReader(f))[3]
+    assert repr(m3["min_separation_ratio"]) == row3["min_separation_ratio"]
+    assert any((tmp_path / "cli" / "figures").glob("animation.*"))
+    assert main(["rerun", str(tmp_path / "b1"), "4"]) == 2
 
 
 @pytest.mark.slow  # ~45 s on 2 cores (a sweep compiled in-process): `make test-slow`

@@ -4,16 +4,17 @@ tune` runs its trials through.
 
     run_sweep(config, out_dir, ...) -> SweepResult      run or resume a [sweep] grid
     merge_shards(config, out_dir, ...) -> SweepResult   shard CSVs -> sweep.csv
+    rerun_row(sweep_dir, row, out=None, ...) -> RerunResult   a row as a run directory
     sweep_points(config) -> [SweepPoint]                the whole grid, in run order
     read_sweep_csv(path), best_setting(path), COLUMNS   sweep.csv
 
 Modules: engines.py (the command: the local engine, shards and their merge, resuming,
-the summary), points.py (the grid's points and scenarios), batch.py (one batch of
-points in this process: padding, the batch program compiled once per shape, the rows;
-both engines and `jaxplan tune`), table.py (sweep.csv: its columns, its readers, the
-per-cell grid, the best setting), ray.py (the Ray engine; Ray imported only when
-used), guard.py (the config guard of sweep and tune directories, the behaviour
-revision).
+the summary), points.py (the grid's points and scenarios), batch.py (grid points run in
+this process: the grid's padding, on a CPU one one-run program per run, the rows; both
+engines, `jaxplan tune` and `jaxplan rerun`), rerun.py (`jaxplan rerun`), table.py
+(sweep.csv: its columns, its readers, the per-cell grid, the best setting), ray.py
+(the Ray engine; Ray imported only when used), guard.py (the config guard of sweep and
+tune directories, the behaviour revision).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from jaxplan.sweep.points import (
     scenario_sources,
     sweep_points,
 )
+from jaxplan.sweep.rerun import RerunResult, rerun_row
 from jaxplan.sweep.table import (
     COLUMNS,
     KEY_COLUMNS,
@@ -67,6 +69,7 @@ __all__ = [
     "DEFAULT_BATCH_CPU",
     "KEY_COLUMNS",
     "BatchRunner",
+    "RerunResult",
     "CompileCounter",
     "CsvInfo",
     "ScenarioSource",
@@ -87,6 +90,7 @@ __all__ = [
     "parse_shard",
     "read_sweep_csv",
     "read_sweep_rows",
+    "rerun_row",
     "row_key",
     "run_sweep",
     "scenario_sources",

@@ -1,26 +1,39 @@
-"""One batch of sweep grid points, run in this process: what both sweep engines run
-(:mod:`jaxplan.sweep.engines` locally, :mod:`jaxplan.sweep.ray` on Ray workers), so that a
-point's sweep.csv row is the same whatever the engine.
+"""Sweep grid points run in this process: what both sweep engines run
+(:mod:`jaxplan.sweep.engines` locally, :mod:`jaxplan.sweep.ray` on Ray workers) and
+`jaxplan tune` and `jaxplan rerun` too, so that a point's sweep.csv row is the same
+whatever the engine, the batch size and the number of CPU devices.
 
-    BatchRunner(config, say).rows(points, built, m_pad, batch, on_compiled=None, *,
-                                  weights=None, r_pad=None) -> [row]
+    BatchRunner(config, say).run(points, built, m_pad, in_flight, on_compiled=None, *,
+                                 weights=None, r_pad=None, on_rows=None) -> [row]
+    BatchRunner(config, say).run_one(point, built, m_pad, r_pad) -> (config, scenario,
+                                                                     records, final)
+    BatchRunner(config, say).rows(points, built, m_pad, batch, ...) -> [row]   (vmapped)
     CompileCounter.install(), CompileCounter.get()      compilations of the batch program
-    csv_row(point, metrics, n_waypoints, error) -> row  a run's sweep.csv row
+    csv_row(point, metrics, n_waypoints, error) -> row  a run's row (jaxplan.sweep.table's)
     pad_robots(fp, task, m_pad), structure_for(config, n_dim, ...), with_weights(config, w)
 
-The points and their built scenarios (``built``) come from :mod:`jaxplan.sweep.points`.
+The points and their built scenarios (``built``: the whole grid's) come from
+:mod:`jaxplan.sweep.points`.
 
-A batch is one call of one compiled program (:func:`jaxplan.rollout.rollout_batch`,
-vmapped over runs) with the weights and every other fleet parameter as traced batched
-inputs.  A batch of fewer points than ``batch`` is padded by repeating its last run (the
-duplicates are dropped), so every batch of a shape has the same shape.  Fleets smaller
-than ``m_pad`` robots are padded with masked robots (``FleetParams.robot_mask``) parked
-far away, which the planner never plans for and no robot sees.  On a CPU with several
-devices a batch whose size is a multiple of their number is split over them, each
-device running its own runs side by side (:func:`jaxplan.solve.shard_lanes`).  The
-program is compiled once per process, structure and shape (robots, dimensions,
-waypoints, batch) and kept; compilations are counted from JAX's own compile events
-(``jax.monitoring``, :class:`CompileCounter`).
+The program is :func:`jaxplan.rollout.rollout_batch` (vmapped over runs) with the
+weights and every other fleet parameter as traced batched inputs, compiled once per
+process, structure, shape (robots, dimensions, waypoints, static rows, batch) and
+device, and kept. On a CPU every run is its own program of ONE run
+(:meth:`BatchRunner.run`): the same program on every engine, whatever runs beside it, so
+each run's closed loop computes the same floating-point operations wherever it runs;
+``in_flight`` such runs go at once, in threads that call the one compiled program side
+by side (a call runs without the GIL), so the number of CPU devices changes nothing. On
+an accelerator a batch of ``in_flight`` runs is one vmapped call
+(:meth:`BatchRunner.rows`; a batch of fewer points is padded by repeating its last run,
+the duplicates dropped): its rows agree with a CPU's to round-off only.
+
+What a run's program and inputs depend on is the grid's, never its batch's: fleets are
+padded to ``m_pad`` robots (the largest fleet of the grid's shape group; masked robots,
+``FleetParams.robot_mask``, parked far away, which the planner never plans for and no
+robot sees), worlds to ``r_pad`` static rows (the grid's shape group's most; masked
+rows), the NLP forms the static-row kinds of the whole grid (:func:`grid_kinds`), and
+the guide is on for every run where a world of the grid needs it.  Compilations are
+counted from JAX's own compile events (``jax.monitoring``, :class:`CompileCounter`).
 
 Per-run weights (``weights``, for :mod:`jaxplan.tune`): each point may override any of
 the [planner] settings in :data:`jaxplan.config.TUNABLE_WEIGHTS` besides its own q_obs and
@@ -28,13 +41,13 @@ q_lim (q_dynm, k_t, k_p, safety_margin_m); they are traced inputs like the point
 and q_lim (the weights, the prediction weight k_t / q_dynm, the radii plus the margin),
 so runs of different weights share one compiled program.
 
-Rows: :data:`jaxplan.sweep.table.COLUMNS`, from the run's metrics (:func:`csv_row`).
+Rows: :data:`jaxplan.sweep.table.COLUMNS`, from the run's metrics
+(:func:`jaxplan.sweep.table.csv_row`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -52,8 +65,8 @@ from jaxplan.planner.guide import guide_enabled
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
 from jaxplan.run_setup import fleet_params, structures, task_of
 from jaxplan.scenarios import Scenario
-from jaxplan.solve import shard_lanes
 from jaxplan.sweep.points import SweepPoint
+from jaxplan.sweep.table import csv_row
 from jaxplan.timing import KeptPrograms, arg_key, timed
 from jaxplan.world import ALL_KINDS, PLANE, row_kinds, static_rows
 
@@ -71,67 +84,6 @@ __all__ = [
 PARK_DISTANCE = 1.0e4  # m: where padding robots are parked
 PARK_SPACING = 10.0  # m between parked padding robots
 PROGRAM = "jaxplan_sweep_batch"  # the batch program's name in JAX's compile events
-
-
-# ------------------------------------------------------------------------ rows
-
-
-def _csv_cell(x) -> str:
-    """A value as a sweep.csv cell: 1/0 for booleans, repr for floats, empty for None,
-    NaN and inf."""
-    if x is None:
-        return ""
-    if isinstance(x, (bool, np.bool_)):
-        return "1" if x else "0"
-    if isinstance(x, (int, np.integer)):
-        return str(int(x))
-    x = float(x)
-    return repr(x) if math.isfinite(x) else ""
-
-
-def csv_row(point: SweepPoint, metrics: dict | None, n_waypoints: int = 1,
-            error: str = "") -> dict:
-    """The sweep.csv row of a run from its metrics.json dict (None: the run failed with
-    ``error``)."""
-    row = {"q_obs": repr(float(point.q_obs)), "q_lim": repr(float(point.q_lim)),
-           "scenario": point.scenario, "seed": str(point.seed)}
-    if metrics is None:
-        row.update(success="0", error=error)
-        return row
-    pr = metrics["per_robot"]
-    ttg = [r["time_to_goal_s"] for r in pr if r["reached"] and r["time_to_goal_s"] is not None]
-    row.update({
-        "success": _csv_cell(bool(metrics["success"])),
-        "collisions": _csv_cell(int(metrics["collisions"])),
-        "min_separation_ratio": _csv_cell(metrics["min_separation_ratio"]),
-        "makespan_s": _csv_cell(metrics["makespan_s"]),
-        "mean_time_to_goal_s": _csv_cell(float(np.mean(ttg)) if ttg else None),
-        "reached_frac": _csv_cell(float(np.mean([r["reached"] for r in pr]))),
-        "waypoints_frac": _csv_cell(float(np.mean([r["waypoints_reached"] for r in pr]))
-                               / max(1, n_waypoints)),
-        "peak_speed_ratio": _csv_cell(metrics["peak_speed_over_limit"]),
-        "converged_frac": _csv_cell(metrics["solver"].get("converged_frac")),
-        "iterations_median": _csv_cell(metrics["solver"].get("iterations_median")),
-        "fallbacks_kept_previous": _csv_cell(int(metrics["fallbacks"]["kept_previous"])),
-        "fallbacks_braking": _csv_cell(int(metrics["fallbacks"]["braking"])),
-        "fallbacks_best_effort": _csv_cell(int(metrics["fallbacks"]["best_effort"])),
-        "fallbacks_goal_occupied": _csv_cell(int(metrics["fallbacks"].get("goal_occupied", 0))),
-        "robots": _csv_cell(int(metrics["robots"])),
-        "duration_s": _csv_cell(metrics["duration_s"]),
-        "replans": _csv_cell(int(metrics["replans"])),
-        "error": error,
-        "obstacle_collisions": _csv_cell(int(metrics["obstacle_collisions"])),
-        "min_obstacle_clearance_m": _csv_cell(metrics["min_obstacle_clearance_m"]),
-        "workspace_violations": _csv_cell(int(metrics["workspace_violations"])),
-        "min_workspace_clearance_m": _csv_cell(metrics["min_workspace_clearance_m"]),
-        "stalls": _csv_cell(int(metrics.get("stalls", 0))),
-        "stalled_s": _csv_cell(metrics.get("stalled_s")),
-        "parked": _csv_cell(int(metrics.get("parked", 0))),
-        "makespan_over_bound": _csv_cell(metrics.get("makespan_over_bound")),
-        "settled_makespan_s": _csv_cell(metrics.get("settled_makespan_s")),
-        "max_goal_departure_m": _csv_cell(metrics.get("max_goal_departure_m")),
-    })
-    return row
 
 
 # ------------------------------------------------------------------------ inputs
@@ -221,25 +173,14 @@ def grid_kinds(scenarios, n_dim: int) -> tuple[int, ...]:
 # ------------------------------------------------------------------------ the program
 
 
-def _batch_program(fp, task, structure: RolloutStructure, shards: int = 1):
-    def runs(fp, task):
-        final, records = rollout_batch(fp, task, structure, fp_axis=0)
-        return (final.reached, final.reach_time), records
-
-    # runs split over the CPU's devices, each running its own (module doc)
-    return shard_lanes(runs, (fp, task), shards)
+def _batch_program(fp, task, structure: RolloutStructure):
+    final, records = rollout_batch(fp, task, structure, fp_axis=0)
+    return (final.reached, final.reach_time), records
 
 
 _batch_program.__name__ = PROGRAM
 _batch_program.__qualname__ = PROGRAM
-_batch_jit = jax.jit(_batch_program, static_argnames=("structure", "shards"))
-
-
-def cpu_shards(batch: int) -> int:
-    """CPU devices a batch of ``batch`` runs is split over: all of them when the batch
-    is a multiple of their number (on a CPU backend), else 1."""
-    n = len(jax.devices("cpu"))
-    return n if jax.default_backend() == "cpu" and n > 1 and batch % n == 0 else 1
+_batch_jit = jax.jit(_batch_program, static_argnames=("structure",))
 
 
 class CompileCounter:
@@ -261,20 +202,34 @@ class CompileCounter:
             def listener(event, duration, **kw):
                 if event == "/jax/core/compile/backend_compile_duration":
                     name = str(kw.get("fun_name", ""))
-                    key = PROGRAM if PROGRAM in name else "other"
-                    cls.counts[key] = cls.counts.get(key, 0) + 1
+                    cls._add(PROGRAM if PROGRAM in name else "other")
 
             def hits(event, **kw):
                 if event == "/jax/compilation_cache/cache_hits":
-                    cls.counts["cache_hits"] = cls.counts.get("cache_hits", 0) + 1
+                    cls._add("cache_hits")
 
             monitoring.register_event_duration_secs_listener(listener)
             monitoring.register_event_listener(hits)
             cls._installed = True
 
+    _local = threading.local()  # this thread's counts (compiles run in several threads)
+
+    @classmethod
+    def _add(cls, key: str) -> None:
+        with cls._lock:
+            cls.counts[key] = cls.counts.get(key, 0) + 1
+        mine = cls._local.__dict__.setdefault("counts", {})
+        mine[key] = mine.get(key, 0) + 1
+
     @classmethod
     def get(cls, key: str = PROGRAM) -> int:
         return cls.counts.get(key, 0)
+
+    @classmethod
+    def get_here(cls, key: str = PROGRAM) -> int:
+        """The count of this thread's events only (JAX reports a compilation in the
+        thread that compiles)."""
+        return cls._local.__dict__.get("counts", {}).get(key, 0)
 
 
 class _ReachState(NamedTuple):
@@ -333,6 +288,7 @@ class Tally:
 # shard, or a Ray worker's next task) of the same structure and shapes reuses one
 MAX_PROGRAMS = 8
 _PROGRAMS = KeptPrograms(MAX_PROGRAMS)
+_PROGRAMS_LOCK = threading.RLock()  # the kept programs and a runner's tally, across threads
 
 
 class BatchRunner:
@@ -346,6 +302,7 @@ class BatchRunner:
         self.say = say
         self.tally = Tally()
         self._compiled: dict = {}
+        self._compile_locks: dict = {}
         self._structures: dict[tuple[int, int], RolloutStructure] = {}
         CompileCounter.install()
 
@@ -363,40 +320,42 @@ class BatchRunner:
                 self.config, n_dim, r_pad, [*built.values(), *batch_scenarios])
         return have
 
-    def _compile(self, fpb, taskb, n_dim: int, batch: int, shape, structure):
+    def _compile(self, fpb, taskb, n_dim: int, batch: int, shape, structure, device=None):
+        """The batch program for these inputs (``batch`` runs), compiled or kept from
+        before; with ``device``, for that device (its inputs committed there)."""
         m_pad, _, n_wp, r_pad = shape
-        sh = cpu_shards(batch)
-        pkey = (structure, sh, arg_key(fpb, taskb))  # what jit keys a program on
-        compiled = _PROGRAMS.get(pkey)
+        # what jit keys a program on (the device: a CPU program runs on its own device)
+        pkey = (structure, arg_key(fpb, taskb), device)
+        with _PROGRAMS_LOCK:
+            compiled = _PROGRAMS.get(pkey)
         if compiled is not None:
             self.say("the planner for this shape is compiled already (in this process)")
             return compiled
-        self.say(f"compiling the planner: batch of {batch} runs x {m_pad} robots "
-                 f"x {structure.steps} replans ({n_dim}-D, {n_wp} waypoints"
-                 + (f"; {sh} CPU devices, {batch // sh} run(s) each)" if sh > 1 else ")"))
-        c0, h0 = CompileCounter.get(), CompileCounter.get("cache_hits")
+        where = f" on {device}" if device is not None else ""
+        self.say(f"compiling the planner: batch of {batch} run{'s' if batch > 1 else ''} x "
+                 f"{m_pad} robots x {structure.steps} replans ({n_dim}-D, {n_wp} "
+                 f"waypoints){where}")
+        c0, h0 = CompileCounter.get_here(), CompileCounter.get_here("cache_hits")
+        if device is not None:
+            fpb, taskb = jax.device_put((fpb, taskb), device)
         compiled, seconds = timed(
-            lambda: _batch_jit.lower(fpb, taskb, structure=structure, shards=sh).compile())
-        self.tally.compile_s += seconds
-        self.tally.compilations += CompileCounter.get() - c0
-        hits = CompileCounter.get("cache_hits") - h0
-        self.tally.cache_hits += hits
+            lambda: _batch_jit.lower(fpb, taskb, structure=structure).compile())
+        hits = CompileCounter.get_here("cache_hits") - h0
+        with _PROGRAMS_LOCK:
+            self.tally.compile_s += seconds
+            self.tally.compilations += CompileCounter.get_here() - c0
+            self.tally.cache_hits += hits
+            _PROGRAMS.put(pkey, compiled)
         self.say(f"compiled in {seconds:.1f} s" + (" (from the compilation cache)" if hits else ""))
-        return _PROGRAMS.put(pkey, compiled)
+        return compiled
 
-    def rows(self, points, built: dict, m_pad: int, batch: int,
-             on_compiled: Callable[[], None] | None = None, *, weights=None,
-             r_pad: int | None = None) -> list[dict]:
-        """The sweep.csv rows of ``points`` (at most ``batch``, one shape: dimensions and
-        waypoints) run as one batch of ``batch`` runs with ``m_pad`` robots; ``built``:
-        their scenarios (:func:`jaxplan.sweep.points.build_scenarios`).  ``on_compiled``
-        is called after a compilation, before the run.  ``weights``: per point, {name:
-        value} of its other traced [planner] weights (module doc; None: the config's).
-        ``r_pad``: static rows to pad every world to (default: the batch's largest
-        world's)."""
-        points = list(points)
-        if not 1 <= len(points) <= batch:
-            raise ValueError(f"a batch holds 1 to {batch} points, got {len(points)}")
+    # -------------------------------------------------------------- inputs of runs
+
+    def _configs(self, points, weights, built) -> list[Config]:
+        """Each point's config: its weights (``weights``: per point, {name: value} of
+        its other traced [planner] weights, or None), and the guide on for every run
+        where a scenario of ``built`` (the grid's) needs it: one task tree for the grid,
+        whichever runs share a batch."""
         if weights is None:
             configs = [self.config] * len(points)
         else:
@@ -405,17 +364,39 @@ class BatchRunner:
             if any({"q_obs", "q_lim"} & set(w) for w in weights):
                 raise ValueError("q_obs and q_lim are the points' own, not weights'")
             configs = [with_weights(self.config, w) for w in weights]
+        guide = self.config.planner.guide
+        if guide not in ("off", "on") and any(guide_enabled(guide, sc.world)
+                                              for sc in built.values()):
+            configs = [dataclasses.replace(c, planner=dataclasses.replace(
+                c.planner, guide="on")) for c in configs]
+        return configs
+
+    def _r_pad(self, points, built, r_pad: int | None) -> int:
         need = max(static_rows(built[(p.scenario, p.seed)].world).mask.shape[0]
                    for p in points)
         if r_pad is None:
-            r_pad = need
-        elif r_pad < need:
+            return need
+        if r_pad < need:
             raise ValueError(f"r_pad = {r_pad} < {need} static rows of a world in the batch")
-        # one batch, one task tree: the guide for every run if a run of it needs one
-        if any(guide_enabled(c.planner.guide, built[(p.scenario, p.seed)].world)
-               for c, p in zip(configs, points, strict=True)):
-            configs = [c if c.planner.guide == "off" else dataclasses.replace(
-                c, planner=dataclasses.replace(c.planner, guide="on")) for c in configs]
+        return r_pad
+
+    # -------------------------------------------------------------- vmapped batches
+
+    def rows(self, points, built: dict, m_pad: int, batch: int,
+             on_compiled: Callable[[], None] | None = None, *, weights=None,
+             r_pad: int | None = None) -> list[dict]:
+        """The sweep.csv rows of ``points`` (at most ``batch``, one shape: dimensions and
+        waypoints) run as one vmapped batch of ``batch`` runs with ``m_pad`` robots
+        (what :meth:`run` does on an accelerator); ``built``: the grid's scenarios
+        (:func:`jaxplan.sweep.points.build_scenarios`).  ``on_compiled`` is called after
+        a compilation, before the run.  ``weights``: per point, {name: value} of its
+        other traced [planner] weights (module doc; None: the config's).  ``r_pad``:
+        static rows to pad every world to (default: the batch's largest world's)."""
+        points = list(points)
+        if not 1 <= len(points) <= batch:
+            raise ValueError(f"a batch holds 1 to {batch} points, got {len(points)}")
+        configs = self._configs(points, weights, built)
+        r_pad = self._r_pad(points, built, r_pad)
         preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad)
                  for c, p in zip(configs, points, strict=True)]
         full = preps + [preps[-1]] * (batch - len(preps))
@@ -424,7 +405,7 @@ class BatchRunner:
         sc = preps[0].scenario
         shape = (m_pad, sc.dim, sc.num_waypoints, r_pad)
         structure = self.structure(sc.dim, r_pad, built, [p.scenario for p in preps])
-        key = (shape, batch, structure)
+        key = (shape, batch, structure, None)
         compiled = self._compiled.get(key)
         if compiled is None:
             compiled = self._compiled[key] = self._compile(fpb, taskb, sc.dim, batch, shape,
@@ -441,3 +422,154 @@ class BatchRunner:
         self.tally.run_s += time.perf_counter() - t0
         self.tally.batches += 1
         return rows
+
+    # -------------------------------------------------------------- one-run programs
+
+    def _one_run_inputs(self, prep: _Prepared):
+        """A run's inputs as a batch of one (the one-run program's)."""
+        return stack_trees([prep.fp]), stack_trees([prep.task])
+
+    def _one_run_program(self, prep: _Prepared, built: dict, r_pad: int, device):
+        """The one-run program of this run's shape on ``device``, compiled once per
+        runner, shape and device (a lock per key: one compilation when two threads
+        want it)."""
+        sc = prep.scenario
+        m_pad = np.shape(prep.task.start)[0]
+        shape = (m_pad, sc.dim, sc.num_waypoints, r_pad)
+        with _PROGRAMS_LOCK:
+            structure = self.structure(sc.dim, r_pad, built, [sc])
+            key = (shape, 1, structure, device)
+            lock = self._compile_locks.setdefault(key, threading.Lock())
+        with lock:
+            compiled = self._compiled.get(key)
+            if compiled is None:
+                fpb, taskb = self._one_run_inputs(prep)
+                compiled = self._compiled[key] = self._compile(fpb, taskb, sc.dim, 1, shape,
+                                                               structure, device)
+        return compiled
+
+    def run_one(self, point: SweepPoint, built: dict, m_pad: int, r_pad: int | None = None,
+                *, weights: dict | None = None, device=None):
+        """One grid point through its one-run program (what :meth:`run` does with it on
+        a CPU): (its config, its scenario, its records (numpy, unpadded robots), its
+        final reached / reach_time).  ``device``: a CPU device (default the first)."""
+        device = jax.devices("cpu")[0] if device is None else device
+        config = self._configs([point], None if weights is None else [weights], built)[0]
+        r_pad = self._r_pad([point], built, r_pad)
+        prep = _prepare(config, point, built[(point.scenario, point.seed)], m_pad, r_pad)
+        compiled = self._one_run_program(prep, built, r_pad, device)
+        (reached, reach_time), records = compiled(*jax.device_put(
+            self._one_run_inputs(prep), device))
+        M = prep.scenario.num_robots
+
+        def lane(x):
+            x = np.asarray(x)[0]
+            return x[:, :M] if x.ndim >= 2 else x
+
+        final = _ReachState(np.asarray(reached)[0, :M], np.asarray(reach_time)[0, :M])
+        return config, prep.scenario, jax.tree.map(lane, records), final
+
+    def run(self, points, built: dict, m_pad: int, in_flight: int,
+            on_compiled: Callable[[], None] | None = None, *, weights=None,
+            r_pad: int | None = None, on_rows: Callable[[list[dict]], None] | None = None
+            ) -> list[dict]:
+        """The sweep.csv rows of ``points`` (one shape group: dimensions and waypoints),
+        in their order, with ``m_pad`` robots and ``r_pad`` static rows (default: the
+        points' largest world's; a sweep passes its grid's).
+
+        On a CPU every run is its own one-run program (the same program whatever else
+        runs: its row is the same on every engine, batch size and number of CPU
+        devices), ``in_flight`` runs at a time (threads calling that one compiled
+        program).  On an accelerator: vmapped batches of ``in_flight`` runs
+        (:meth:`rows`).
+        ``on_compiled`` after the programs are compiled; ``on_rows(rows)`` as rows are
+        done, in order."""
+        points = list(points)
+        if not points:
+            return []
+        if weights is not None and len(weights) != len(points):
+            raise ValueError(f"{len(weights)} weight sets for {len(points)} points")
+        r_pad = self._r_pad(points, built, r_pad)
+        if jax.default_backend() != "cpu":
+            out = []
+            for k in range(0, len(points), in_flight):
+                chunk = points[k:k + in_flight]
+                w = None if weights is None else weights[k:k + in_flight]
+                rows = self.rows(chunk, built, m_pad, in_flight, on_compiled, weights=w,
+                                 r_pad=r_pad)
+                if on_rows is not None:
+                    on_rows(rows)
+                out += rows
+            return out
+        return self._run_cpu(points, built, m_pad, max(1, int(in_flight)), on_compiled,
+                             weights, r_pad, on_rows)
+
+    def _run_cpu(self, points, built, m_pad, in_flight, on_compiled, weights, r_pad,
+                 on_rows) -> list[dict]:
+        """:meth:`run` on a CPU: the one-run program compiled once (for the first CPU
+        device), then ``in_flight`` worker threads, each running one run after another
+        through it (a call runs in its caller's thread, without the GIL: the runs go
+        side by side on the cores; one executable, so the same operations for all)."""
+        configs = self._configs(points, weights, built)
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad)
+                 for c, p in zip(configs, points, strict=True)]
+        device = jax.devices("cpu")[0]
+        self._one_run_program(preps[0], built, r_pad, device)
+        if on_compiled is not None:
+            on_compiled()
+
+        results: list[dict | None] = [None] * len(points)
+        todo = iter(range(len(points)))
+        done = threading.Condition()
+        errors: list = []
+
+        def work():
+            while not errors:
+                with done:
+                    i = next(todo, None)
+                if i is None:
+                    return
+                compiled = self._one_run_program(preps[i], built, r_pad, device)
+                t0 = time.perf_counter()
+                (reached, reach_time), records = compiled(*jax.device_put(
+                    self._one_run_inputs(preps[i]), device))
+                records = jax.tree.map(np.asarray, records)
+                final = _ReachState(np.asarray(reached), np.asarray(reach_time))
+                row = _run_metrics(configs[i], preps[i], records, final, 0)
+                with done:
+                    self.tally.run_s += time.perf_counter() - t0
+                    self.tally.batches += 1
+                    results[i] = row
+                    done.notify_all()
+
+        threads = [threading.Thread(target=_capture, args=(work, errors), daemon=True)
+                   for _ in range(min(in_flight, len(points)))]
+        for t in threads:
+            t.start()
+        flushed = 0
+        while flushed < len(points):
+            with done:
+                while (results[flushed] is None and not errors
+                       and any(t.is_alive() for t in threads)):
+                    done.wait(timeout=1.0)
+                ready = []
+                while flushed < len(points) and results[flushed] is not None:
+                    ready.append(results[flushed])
+                    flushed += 1
+            if ready and on_rows is not None:
+                on_rows(ready)
+            if errors or not (ready or any(t.is_alive() for t in threads)):
+                break
+        for t in threads:
+            t.join()
+        if errors:
+            raise errors[0]
+        return list(results)
+
+
+def _capture(fn, errors: list) -> None:
+    """fn() in a thread, its exception kept in ``errors``."""
+    try:
+        fn()
+    except BaseException as e:  # re-raised in the calling thread
+        errors.append(e)

@@ -18,23 +18,25 @@ defaults and the config's [limits], instead of the config's fleet).  The seed se
 the scenario (the paper scenarios' jitter, the generators' draws); every run lasts
 ``sim.duration_s`` under the ideal backend.
 
-Batches.  The grid is cut into batches of ``batch_size`` runs (local engine: default
-:data:`DEFAULT_BATCH` on an accelerator, :data:`DEFAULT_BATCH_CPU` per CPU device on a
-CPU; Ray engine: :data:`DEFAULT_BATCH_CPU` per task; or the environment variable
-``JAXPLAN_SWEEP_BATCH``), one batch per shape group: scenarios of different robot
-counts share one shape (smaller fleets padded with masked robots to the largest of the
-whole grid, so that resuming, a shard and every engine pad alike), scenarios that
-differ in the number of waypoints or of spatial dimensions form separate groups.  One
-batch is one call of one compiled program (:class:`jaxplan.sweep.batch.BatchRunner`),
-compiled once per shape group and process; compilations are counted from JAX's own
-compile events and printed (``compilations: 1`` for a one-group grid on the local
-engine; one per worker and shape group on Ray).
+Batches. ``batch_size`` (local engine: default :data:`DEFAULT_BATCH` on an accelerator,
+:data:`DEFAULT_BATCH_CPU` per CPU device on a CPU; Ray engine: :data:`DEFAULT_BATCH_CPU`
+per task; or the environment variable ``JAXPLAN_SWEEP_BATCH``) is, on a CPU, the runs in
+flight: every run is its own one-run program, compiled once and called by ``batch_size``
+threads side by side (:meth:`jaxplan.sweep.batch.BatchRunner.run`), so a row does not
+depend on the batch size, the CPU devices or the engine; on an accelerator, the runs of
+one vmapped call. Points are grouped by shape (spatial dimensions, waypoints:
+:func:`shape_groups`); scenarios of different robot counts share one shape (smaller
+fleets padded with masked robots to the largest of the whole grid's group, worlds to its
+most static rows, so that resuming, a shard, every engine and every batch size pad a run
+alike). A program is compiled once per shape group and process; compilations are counted
+from JAX's own compile events and printed (``compilations: 1`` for a one-group grid; one
+per worker and shape group on Ray).
 
-Engines (``engine``, default ``[sweep] engine``).  "local": the batches run one after
-another in this process, split over its CPU devices.  "ray": each batch is a Ray task
+Engines (``engine``, default ``[sweep] engine``).  "local": the shape groups one after
+another in this process.  "ray": each batch of ``batch_size`` points is a Ray task
 (:mod:`jaxplan.sweep.ray`) on a local Ray instance or the cluster at ``address``; the
 driver writes the rows as the tasks return them, and a task whose worker died runs
-again.  Both write the same row for the same point.
+again.  Both write the same row for the same point, bitwise.
 
 Shards (``shard=(I, N)``, for batch schedulers): only the grid points whose index in
 :func:`jaxplan.sweep.points.sweep_points`'s order is I mod N, into their own
@@ -90,6 +92,7 @@ from jaxplan.sweep.batch import BatchRunner, CompileCounter, Tally
 from jaxplan.sweep.guard import guard_config
 from jaxplan.sweep.points import SweepPoint, build_scenarios, sweep_points
 from jaxplan.sweep.table import SweepError, best_setting, csv_text, read_sweep_csv, row_key
+from jaxplan.world import static_rows
 
 __all__ = [
     "BATCH_ENV",
@@ -99,16 +102,17 @@ __all__ = [
     "merge_shards",
     "parse_shard",
     "run_sweep",
+    "shape_groups",
     "shard_csv_name",
 ]
 
 DEFAULT_BATCH = 27  # runs per batch on an accelerator
-# On a CPU one run per device at a time is faster than vmapping runs on one device: a
-# vmapped solver runs every lane for as many iterations as its slowest lane needs
-# (docs/SWEEPS.md, "Batches on a CPU").  Several CPU devices (jaxplan makes one per core)
-# run their runs side by side (jaxplan.sweep.batch.cpu_shards); a Ray task has one CPU
-# and one device.
-DEFAULT_BATCH_CPU = 1  # runs per CPU device
+# On a CPU one run per core at a time, each its own one-run program: faster than
+# vmapping runs on one device (a vmapped solver runs every lane for as many iterations as
+# its slowest lane needs: docs/SWEEPS.md, "Batches on a CPU"), and the same program
+# wherever the run goes.  jaxplan makes one CPU device per core, so their count is the
+# cores'; a Ray task has one CPU and one device.
+DEFAULT_BATCH_CPU = 1  # runs in flight per CPU device (core)
 BATCH_ENV = "JAXPLAN_SWEEP_BATCH"
 SHARD_CSV = re.compile(r"sweep\.shard-(\d+)-of-(\d+)\.csv")
 
@@ -198,32 +202,50 @@ def _resume_csv(csv_path: Path, say) -> set:
 # ------------------------------------------------------------------------ the sweep
 
 
-def _batches(todo: list[SweepPoint], grid: list[SweepPoint], built,
-             batch: int) -> list[tuple[tuple, int]]:
-    """The points to run cut into batches of at most ``batch``, each of one shape group
-    (dimensions, waypoints), with the robot count of that group over the whole grid (so
-    that a resumed sweep, a shard and every engine pad a fleet alike): [(points, m_pad)]."""
+def shape_groups(todo: list[SweepPoint], grid: list[SweepPoint],
+            built) -> list[tuple[tuple, int, int]]:
+    """The points to run by shape group (dimensions, waypoints), each with the robot
+    count and the static rows of that group over the whole grid (so that a resumed
+    sweep, a shard, every engine and every batch size pad a run alike): [(points, m_pad,
+    r_pad)]."""
     def shape(p):
         sc = built[(p.scenario, p.seed)]
         return sc.dim, sc.num_waypoints
 
-    m_pad: dict[tuple[int, int], int] = {}
+    pads: dict[tuple[int, int], tuple[int, int]] = {}
     for p in grid:
-        m_pad[shape(p)] = max(m_pad.get(shape(p), 0), built[(p.scenario, p.seed)].num_robots)
+        sc = built[(p.scenario, p.seed)]
+        m, r = pads.get(shape(p), (0, 0))
+        pads[shape(p)] = (max(m, sc.num_robots),
+                          max(r, static_rows(sc.world).mask.shape[0]))
     groups: dict[tuple[int, int], list[SweepPoint]] = {}
     for p in todo:
         groups.setdefault(shape(p), []).append(p)
-    return [(tuple(pts[i:i + batch]), m_pad[key])
-            for key, pts in groups.items() for i in range(0, len(pts), batch)]
+    return [(tuple(pts), *pads[key]) for key, pts in groups.items()]
 
 
-def _run_local(config: Config, batches, built, batch: int, write: _Writer,
+def _batches(todo: list[SweepPoint], grid: list[SweepPoint], built,
+             batch: int) -> list[tuple[tuple, int, int]]:
+    """The points to run cut into batches of at most ``batch``, each of one shape group
+    (:func:`shape_groups`): [(points, m_pad, r_pad)]."""
+    return [(pts[i:i + batch], m_pad, r_pad)
+            for pts, m_pad, r_pad in shape_groups(todo, grid, built)
+            for i in range(0, len(pts), batch)]
+
+
+def _run_local(config: Config, groups, built, batch: int, write: _Writer,
                bar: AfterFirstUpdate, say) -> Tally:
-    """The batches one after another in this process."""
+    """The shape groups one after another in this process, ``batch`` runs in flight
+    (:meth:`jaxplan.sweep.batch.BatchRunner.run`); rows written as they are done."""
     runner = BatchRunner(config, say)
-    for points, m_pad in batches:
-        write(runner.rows(points, built, m_pad, batch, on_compiled=bar.start))
-        bar.update(len(points))
+
+    def done(rows):
+        write(rows)
+        bar.update(len(rows))
+
+    for points, m_pad, r_pad in groups:
+        runner.run(points, built, m_pad, batch, on_compiled=bar.start, r_pad=r_pad,
+                   on_rows=done)
     return runner.tally
 
 
@@ -293,9 +315,10 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
         config: a validated Config with a [sweep] table (backend "ideal").
         out_dir: the sweep directory (created): sweep.csv, config.toml, figures/.
         progress: a tqdm progress bar over runs (with ETA).
-        batch_size: runs per compiled batch (default: $JAXPLAN_SWEEP_BATCH, else one
-            per CPU device (local) or per task (ray), DEFAULT_BATCH on an accelerator; at
-            most the number of runs left).
+        batch_size: runs in flight on a CPU, runs per vmapped batch on an accelerator,
+            runs per Ray task (default: $JAXPLAN_SWEEP_BATCH, else one per CPU device
+            (local) or per task (ray), DEFAULT_BATCH on an accelerator; at most the
+            number of runs left).  The rows do not depend on it on a CPU.
         figures: draw the heatmaps at the end (never for a shard).
         echo: where the summary lines go (None: nowhere).
         engine: "local" or "ray" (default: ``config.sweep.engine``).
@@ -308,6 +331,9 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
     say = echo or (lambda s: None)
     where = config.source or config.name
     engine = config.sweep.engine if engine is None else engine
+    if config.planner.method != "krishnan":
+        raise SweepError(f"{where}: [planner] method = {config.planner.method!r}: sweeps run "
+                         "the paper's planner only for now; use `jaxplan run` per seed")
     if engine not in SWEEP_ENGINES:
         raise SweepError(f"engine {engine!r}: choose one of {', '.join(SWEEP_ENGINES)}")
     if address is not None and engine != "ray":
@@ -335,7 +361,6 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
         say(f"sweep {config.name}{part}: {len(points)} runs ({skipped} already in {csv_path}), "
             f"{len(todo)} to go in batches of {batch}")
         built = build_scenarios(config, grid)  # (scenario, seed) pairs: few, cheap
-        batches = _batches(todo, grid, built, batch)
         write = _Writer(csv_path, done)
         # opened after the first compilation (its ETA counts runs only)
         bar = (AfterFirstUpdate(len(points), config.name, "run", initial=skipped)
@@ -345,10 +370,12 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
                 from jaxplan.sweep import ray as sweep_ray
 
                 bar.start()
-                sweep_ray.run_batches(config, batches, batch, write, tally, address=address,
-                                      progress=bar.update, say=say)
+                sweep_ray.run_batches(config, _batches(todo, grid, built, batch), batch,
+                                      write, tally, address=address, progress=bar.update,
+                                      say=say)
             else:
-                tally = _run_local(config, batches, built, batch, write, bar, say)
+                tally = _run_local(config, shape_groups(todo, grid, built), built, batch,
+                                   write, bar, say)
         finally:
             bar.close()
 

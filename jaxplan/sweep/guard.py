@@ -51,7 +51,7 @@ _LEGACY_VALUES = {("planner", "coast_samples"): 0, ("planner", "deadlock"): "off
 # key (a rule, a constant, a metric's definition): the sweep and tune directories carry
 # it in config.toml's first line, and one made by another revision is refused rather
 # than resumed with rows of two versions (one without the line counts as revision 0).
-BEHAVIOUR_REVISION = 6
+BEHAVIOUR_REVISION = 7
 _REVISION = "# jaxplan behaviour revision: "
 
 

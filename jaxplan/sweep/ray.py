@@ -3,7 +3,7 @@ each batch of grid points is one Ray task.
 
     run_batches(config, batches, batch, write_rows, tally, *, address=None, progress=None,
                 say=print) -> None
-    jaxplan_sweep_batch(config_text, source, points, m_pad, batch) -> (rows, stats)   the task
+    jaxplan_sweep_batch(config_text, source, points, m_pad, batch, r_pad) -> (rows, stats)
 
 Ray is optional (``pip install "jaxplan[ray]"``); this module imports it only when a
 sweep runs on it.  Without ``address`` the driver starts a local Ray instance with one
@@ -53,9 +53,11 @@ _GRIDS: dict[str, dict] = {}  # ... and its grid's scenarios
 
 
 def jaxplan_sweep_batch(config_text: str, source: str, points: tuple[SweepPoint, ...],
-                        m_pad: int, batch: int) -> tuple[list[dict], dict]:
-    """The Ray task: the sweep.csv rows of ``points`` (one batch, padded to ``batch``
-    runs of ``m_pad`` robots) under the config whose resolved TOML is ``config_text``.
+                        m_pad: int, batch: int, r_pad: int) -> tuple[list[dict], dict]:
+    """The Ray task: the sweep.csv rows of ``points`` (one batch of at most ``batch``
+    runs, padded to ``m_pad`` robots and ``r_pad`` static rows, the grid's) under the
+    config whose resolved TOML is ``config_text``; on a CPU each run is its own
+    one-run program, the local engine's (:meth:`jaxplan.sweep.batch.BatchRunner.run`).
 
     Returns (rows, stats): stats = compilations (of the batch program, in this task),
     cache_hits (of them, loads from the persistent cache), compile_s, run_s, pid (the
@@ -71,7 +73,7 @@ def jaxplan_sweep_batch(config_text: str, source: str, points: tuple[SweepPoint,
         _GRIDS[config_text] = build_scenarios(config, sweep_points(config))
     t = runner.tally
     before = (t.compilations, t.cache_hits, t.compile_s, t.run_s)
-    rows = runner.rows(points, _GRIDS[config_text], m_pad, batch)
+    rows = runner.run(points, _GRIDS[config_text], m_pad, batch, r_pad=r_pad)
     return rows, {"compilations": t.compilations - before[0],
                   "cache_hits": t.cache_hits - before[1], "compile_s": t.compile_s - before[2],
                   "run_s": t.run_s - before[3], "pid": os.getpid()}
@@ -125,7 +127,7 @@ def run_batches(config: Config, batches, batch: int,
                 write_rows: Callable[[list[dict]], None], tally: Tally, *,
                 address: str | None = None, progress: Callable[[int], None] | None = None,
                 say: Callable[[str], None] = print) -> None:
-    """Run ``batches`` (a list of (points, m_pad)) as Ray tasks of ``batch`` runs each;
+    """Run ``batches`` (a list of (points, m_pad, r_pad)) as Ray tasks of ``batch`` runs each;
     ``write_rows(rows)`` as each comes back; add the workers' compile and run seconds,
     batches and compilations to ``tally``; ``progress(n)`` after n more runs.
 
@@ -146,8 +148,8 @@ def run_batches(config: Config, batches, batch: int,
             name=TASK_NAME, num_cpus=1, max_retries=RETRIES, retry_exceptions=False,
             runtime_env={"env_vars": _worker_env()})
         text = ray.put(config_to_toml(config))
-        pending = {task.remote(text, config.source, tuple(points), m_pad, batch): points
-                   for points, m_pad in batches}
+        pending = {task.remote(text, config.source, tuple(points), m_pad, batch, r_pad): points
+                   for points, m_pad, r_pad in batches}
         failed: list[tuple[int, str]] = []
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)

@@ -7,6 +7,7 @@
     read_sweep_rows(path) -> SweepRows          the analysis columns, typed and checked
     grid(rows, mask) -> Grid                    per-(q_obs, q_lim) cell aggregates
     best_index(grid), best_setting(path), best_summary(grid, index)
+    csv_row(point, metrics, n_waypoints, error) -> row   a run's row from its metrics.json
 
 Both readers parse the file the same way (:func:`_read_records`: a trailing line without
 its newline, what a kill mid-append leaves, is dropped).  :func:`read_sweep_csv` is the
@@ -30,7 +31,7 @@ import numpy as np
 __all__ = [
     "COLUMNS", "KEY_COLUMNS", "ANALYSIS_COLUMNS", "SweepError", "CsvInfo", "SweepRows", "Grid",
     "make_key", "row_key", "csv_text", "read_sweep_csv", "read_sweep_rows", "grid", "best_index",
-    "best_setting", "best_summary",
+    "best_setting", "best_summary", "csv_row",
 ]
 
 KEY_COLUMNS = ("q_obs", "q_lim", "scenario", "seed")
@@ -314,3 +315,64 @@ def best_summary(g: Grid, best) -> str:
     if np.isfinite(g.makespan[a, b]):
         s += f", makespan {g.makespan[a, b]:.1f} s"
     return s + ")"
+
+
+# ------------------------------------------------------------------------ a run's row
+
+
+def _csv_cell(x) -> str:
+    """A value as a sweep.csv cell: 1/0 for booleans, repr for floats, empty for None,
+    NaN and inf."""
+    if x is None:
+        return ""
+    if isinstance(x, (bool, np.bool_)):
+        return "1" if x else "0"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    x = float(x)
+    return repr(x) if math.isfinite(x) else ""
+
+
+def csv_row(point, metrics: dict | None, n_waypoints: int = 1, error: str = "") -> dict:
+    """The sweep.csv row of a run (``point``: its grid point, a
+    :class:`jaxplan.sweep.points.SweepPoint`) from its metrics.json dict (None: the run
+    failed with ``error``)."""
+    row = {"q_obs": repr(float(point.q_obs)), "q_lim": repr(float(point.q_lim)),
+           "scenario": point.scenario, "seed": str(point.seed)}
+    if metrics is None:
+        row.update(success="0", error=error)
+        return row
+    pr = metrics["per_robot"]
+    ttg = [r["time_to_goal_s"] for r in pr if r["reached"] and r["time_to_goal_s"] is not None]
+    row.update({
+        "success": _csv_cell(bool(metrics["success"])),
+        "collisions": _csv_cell(int(metrics["collisions"])),
+        "min_separation_ratio": _csv_cell(metrics["min_separation_ratio"]),
+        "makespan_s": _csv_cell(metrics["makespan_s"]),
+        "mean_time_to_goal_s": _csv_cell(float(np.mean(ttg)) if ttg else None),
+        "reached_frac": _csv_cell(float(np.mean([r["reached"] for r in pr]))),
+        "waypoints_frac": _csv_cell(float(np.mean([r["waypoints_reached"] for r in pr]))
+                               / max(1, n_waypoints)),
+        "peak_speed_ratio": _csv_cell(metrics["peak_speed_over_limit"]),
+        "converged_frac": _csv_cell(metrics["solver"].get("converged_frac")),
+        "iterations_median": _csv_cell(metrics["solver"].get("iterations_median")),
+        "fallbacks_kept_previous": _csv_cell(int(metrics["fallbacks"]["kept_previous"])),
+        "fallbacks_braking": _csv_cell(int(metrics["fallbacks"]["braking"])),
+        "fallbacks_best_effort": _csv_cell(int(metrics["fallbacks"]["best_effort"])),
+        "fallbacks_goal_occupied": _csv_cell(int(metrics["fallbacks"].get("goal_occupied", 0))),
+        "robots": _csv_cell(int(metrics["robots"])),
+        "duration_s": _csv_cell(metrics["duration_s"]),
+        "replans": _csv_cell(int(metrics["replans"])),
+        "error": error,
+        "obstacle_collisions": _csv_cell(int(metrics["obstacle_collisions"])),
+        "min_obstacle_clearance_m": _csv_cell(metrics["min_obstacle_clearance_m"]),
+        "workspace_violations": _csv_cell(int(metrics["workspace_violations"])),
+        "min_workspace_clearance_m": _csv_cell(metrics["min_workspace_clearance_m"]),
+        "stalls": _csv_cell(int(metrics.get("stalls", 0))),
+        "stalled_s": _csv_cell(metrics.get("stalled_s")),
+        "parked": _csv_cell(int(metrics.get("parked", 0))),
+        "makespan_over_bound": _csv_cell(metrics.get("makespan_over_bound")),
+        "settled_makespan_s": _csv_cell(metrics.get("settled_makespan_s")),
+        "max_goal_departure_m": _csv_cell(metrics.get("max_goal_departure_m")),
+    })
+    return row

@@ -83,9 +83,9 @@ def run_tune(config: Config, out_dir, *, trials: int | None = None, progress: bo
         out_dir: the tune directory (created).
         trials: complete trials wanted in all (default: [tune] trials).
         progress: a progress bar over runs.
-        batch_size: runs per compiled batch (default $JAXPLAN_SWEEP_BATCH, else 1 on a
-            CPU (:func:`jaxplan.tune.trials.runs_per_batch`), the sweep's 27 on an
-            accelerator).
+        batch_size: runs per batch (default $JAXPLAN_SWEEP_BATCH, else one per CPU
+            device on a CPU, runs in flight (:func:`jaxplan.tune.trials.runs_per_batch`),
+            the sweep's 27 on an accelerator).
         figures: draw the figures at the end.
         echo: where the progress lines and the summary go (None: nowhere).
     Returns: a :class:`TuneResult`.  Raises: TuneError.
@@ -98,6 +98,9 @@ def run_tune(config: Config, out_dir, *, trials: int | None = None, progress: bo
     if config.sim.backend != "ideal":
         raise TuneError(f"{config.source or config.name}: sim.backend = "
                         f"{config.sim.backend!r}: tuning runs the ideal backend only")
+    if config.planner.method != "krishnan":
+        raise TuneError(f"{config.source or config.name}: [planner] method = "
+                        f"{config.planner.method!r}: tuning tunes the paper's planner only")
     tune = config.tune
     target = tune.trials if trials is None else int(trials)
     if target < 1:

@@ -12,8 +12,10 @@ Every run goes through :class:`jaxplan.sweep.batch.BatchRunner` with its own wei
 per-run ``weights``), where every weight is a traced input: one compilation per shape
 group for the whole study.  The runs are grouped by shape (dimensions, waypoints and
 robot count: a fleet is not padded to a larger one's size, which is many times slower,
-docs/TUNING.md; the worlds' static rows are padded to the group's largest) and cut into
-batches of ``batch`` runs.
+docs/TUNING.md; the worlds' static rows are padded to the group's largest) and run
+``batch`` at a time (:meth:`jaxplan.sweep.batch.BatchRunner.run`: on a CPU each run its
+own one-run program, so a run's row does not depend on the batch size or on the other
+runs; on an accelerator vmapped batches of ``batch``).
 
 The objective (minimized) of a trial, over its training runs: ``objective`` (the median,
 mean or max) of the runs' makespans, a run that did not succeed counting as
@@ -181,36 +183,31 @@ class Runner:
         for (_, _, m), idx in groups.items():
             r_pad = max(static_rows(self.scenario(runs[i].scenario, runs[i].seed).world)
                         .mask.shape[0] for i in idx)
-            for k in range(0, len(idx), self.batch):
-                chunk = idx[k:k + self.batch]
-                points, weights = [], []
-                for i in chunk:
-                    w = dict(runs[i].weights)
-                    points.append(SweepPoint(w.pop("q_obs", pc.q_obs), w.pop("q_lim", pc.q_lim),
-                                             runs[i].scenario, runs[i].seed))
-                    weights.append(w)
-                out = self.runner.rows(points, self.built, m, self.batch, weights=weights,
-                                       r_pad=r_pad)
-                for i, row in zip(chunk, out, strict=True):
-                    rows[i] = row
-                if on_batch is not None:
-                    on_batch(len(chunk))
+            points, weights = [], []
+            for i in idx:
+                w = dict(runs[i].weights)
+                points.append(SweepPoint(w.pop("q_obs", pc.q_obs), w.pop("q_lim", pc.q_lim),
+                                         runs[i].scenario, runs[i].seed))
+                weights.append(w)
+            out = self.runner.run(points, self.built, m, self.batch, weights=weights,
+                                  r_pad=r_pad, on_rows=None if on_batch is None else
+                                  (lambda done: on_batch(len(done))))
+            for i, row in zip(idx, out, strict=True):
+                rows[i] = row
         return rows
 
 
 def runs_per_batch(batch_size: int | None) -> int:
-    """Runs per batch: ``batch_size``, else $JAXPLAN_SWEEP_BATCH, else one on a CPU and
-    :data:`jaxplan.sweep.DEFAULT_BATCH` on an accelerator.  One on a CPU, not the sweep's
-    one per CPU device: a batch split over the CPU devices meets at an all-gather when
-    it ends; a tune's runs differ in length (their weights differ), the device that
-    finishes first waits for the other, and on a busy machine XLA can abort the process
-    at its collective timeout (docs/TUNING.md, Known limits)."""
+    """Runs per batch: ``batch_size``, else $JAXPLAN_SWEEP_BATCH, else one per CPU device
+    (core) on a CPU (runs in flight, each its own one-run program: no batch meets at a
+    collective) and :data:`jaxplan.sweep.DEFAULT_BATCH` on an accelerator."""
     if batch_size is None:
         batch_size = env_positive_int(BATCH_ENV, TuneError)
     if batch_size is None:
         import jax
 
-        batch_size = 1 if jax.default_backend() == "cpu" else DEFAULT_BATCH
+        batch_size = (len(jax.devices("cpu")) if jax.default_backend() == "cpu"
+                      else DEFAULT_BATCH)
     if int(batch_size) < 1:
         raise TuneError(f"batch size must be >= 1, got {batch_size}")
     return int(batch_size)
