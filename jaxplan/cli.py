@@ -217,6 +217,9 @@ def _cmd_run(args) -> int:
         import dataclasses
 
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, backend=args.backend))
+        if args.backend == "mjx" and cfg.dim != 3:  # as the parser checks [sim] backend
+            raise _Fail(f"{args.config}: --backend: 'mjx' simulates quadrotors and needs 3-D "
+                        f"positions; this config is {cfg.dim}-D (use --backend ideal)")
     from jaxplan.experiment import run
     from jaxplan.files import write_run
 

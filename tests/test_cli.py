@@ -112,6 +112,14 @@ def test_bad_config_is_one_clear_line(tmp_path, capsys):
     assert "bad.toml" in err and "planner.q_ob" in err
 
 
+def test_the_mjx_flag_on_a_planar_config_is_one_clear_line(tmp_path, capsys):
+    cfg = tmp_path / "planar.toml"
+    cfg.write_text('[[robots]]\nvehicle = "ground"\nstart = [0.0, 0.0]\ngoal = [2.0, 0.0]\n')
+    assert main(["run", str(cfg), "--backend", "mjx", "--no-figures"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "planar.toml" in err and "--backend" in err and "3-D" in err
+
+
 def test_missing_file(tmp_path, capsys):
     assert main(["run", str(tmp_path / "nope.toml")]) == 2
     err = capsys.readouterr().err
