@@ -253,6 +253,12 @@ def summary(m: dict, out: Path, cache: str | None = None) -> str:
            if m.get("max_goal_departure_m") is not None else "")
         + (f"; all settled by {m['settled_makespan_s']:.2f} s"
            if m.get("settled_makespan_s") is not None else ""),
+        f"  peak / limit: speed {f(m.get('peak_speed_ratio'))}, acc "
+        f"{f(m.get('peak_acc_ratio'))}, jerk {f(m.get('peak_jerk_ratio'))} (planned"
+        + (f"; tracked: speed {f(m.get('tracked_peak_speed_ratio'))}, acc "
+           f"{f(m.get('tracked_peak_acc_ratio'))}" if "tracked_peak_acc_ratio" in m else "")
+        + f")   goal excursion {f(m.get('goal_excursion_m'), '{:.2f}')} m   escape "
+        f"{f(m.get('escape_m'), '{:.2f}')} m",
         f"  replan wall time: median {f(s['median_ms'], '{:.1f}')} ms, p95 "
         f"{f(s['p95_ms'], '{:.1f}')} ms, max {f(s['max_ms'], '{:.1f}')} ms; "
         f"converged {f(s['converged_frac'], '{:.1%}')}",

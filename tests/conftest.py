@@ -61,7 +61,7 @@ TINY_TOML = (Path(__file__).resolve().parents[1] / "examples" / "tiny.toml").rea
 # is its own unit, as usual.
 SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
                  ("test_cli", "test_crash", "test_examples", "test_planner", "test_sweep",
-                  "test_world_metrics", "test_tune", "test_export")}
+                  "test_world_metrics", "test_tune", "test_export", "test_limit_metrics")}
 
 
 # The units in order of their test time (2-core CPU, seconds: tiny 117, test_solver 106,

@@ -8,11 +8,12 @@ Modules:
     motion.py       how the robots moved: kinematic maxima, path length, sampling, time
                     to goal, parked robots, the makespan's bound; the replans' times
     clearance.py    exact clearance to the world's obstacles and workspace faces
+    excursion.py    how far robots strayed from a reached goal, and outside a box
     report.py       a run's metrics.json and trajectories.npz from its records
                     (``from jaxplan.metrics.report import compute_metrics``; it reads the
                     planner's and the solver's codes, so the package does not import it)
 
-The functions of the first four work on the executed plan pieces of a run, as stored in
+The functions of the first five work on the executed plan pieces of a run, as stored in
 ``trajectories.npz``:
 
     seg_robot  (S,)          int, the robot each piece belongs to, 0 <= r < M
@@ -34,6 +35,7 @@ from jaxplan.metrics.clearance import (
     world_clearance,
     world_report,
 )
+from jaxplan.metrics.excursion import escape_pieces, fleet_box, goal_excursion_pieces
 from jaxplan.metrics.motion import (
     Kinematics,
     kinematics,
@@ -61,4 +63,7 @@ __all__ = [
     "world_clearance",
     "world_report",
     "exact_signed_distance",
+    "goal_excursion_pieces",
+    "escape_pieces",
+    "fleet_box",
 ]

@@ -7,10 +7,11 @@ docs/DESIGN.md "A run directory" names every key).
     sim_metrics(...), sim_world_report(...)    those measures, on the simulated states
     pieces_from_records(records)               the executed pieces
     goal_departure(t, pos, goal, reach_time)   how far robots went from a reached goal
+    limit_metrics(scenario, pieces, kin, ...)  peaks over the limits, goal excursion, escape
 
 The numbers come from the exact measures of :mod:`jaxplan.metrics` (separation,
-kinematics, clearance) on the executed pieces, and from the planner's records (stalls,
-fallbacks, statuses, faults).  :func:`jaxplan.experiment.run` calls it after a run;
+kinematics, clearance, excursion) on the executed pieces, and from the planner's records
+(stalls, fallbacks, statuses, faults).  :func:`jaxplan.experiment.run` calls it after a run;
 a sweep calls :func:`compute_metrics` on each run of a batch.
 """
 
@@ -23,6 +24,7 @@ import numpy as np
 from jaxplan import solve
 from jaxplan.config import Config
 from jaxplan.metrics.clearance import world_clearance, world_report
+from jaxplan.metrics.excursion import escape_pieces, fleet_box, goal_excursion_pieces
 from jaxplan.metrics.motion import (
     kinematics,
     makespan_bound,
@@ -37,10 +39,12 @@ from jaxplan.planner.stall import stall_summary
 from jaxplan.scenarios import Scenario
 from jaxplan.world import World, face_names, world_arrays
 
-__all__ = ["SAMPLE_HZ", "SIM_WORLD_KEYS", "compute_metrics", "merge_sim_metrics", "sim_metrics",
-           "sim_world_report", "pieces_from_records", "goal_departure"]
+__all__ = ["SAMPLE_HZ", "ESCAPE_MARGIN_M", "SIM_WORLD_KEYS", "compute_metrics",
+           "merge_sim_metrics", "sim_metrics", "sim_world_report", "pieces_from_records",
+           "goal_departure", "limit_metrics"]
 
 SAMPLE_HZ = 100.0  # trajectories.npz sampling rate
+ESCAPE_MARGIN_M = 1.0  # escape_m: the fleet's box of starts and waypoints grown by this, m
 
 
 # the world keys of metrics.json that the mjx backend measures (sim_metrics)
@@ -100,7 +104,9 @@ def sim_metrics(scenario: Scenario, period, duration: float) -> tuple[dict, dict
     World contacts: the minimum signed distance of every robot's centre to every obstacle
     and workspace face over every physics step (PeriodRecord.static_dist) minus its
     collision radius (:func:`sim_world_report`).  Kinematics and tracking: the
-    control-rate samples.  Returns (metric overrides, arrays).
+    control-rate samples (tracked_peak_speed_ratio, tracked_peak_acc_ratio: the largest
+    simulated speed and acceleration (qacc) over each robot's own v_max, a_max).
+    Returns (metric overrides, arrays).
     """
     valid = np.asarray(period.valid)  # (P, K)
     t = np.asarray(period.t)[valid]
@@ -123,6 +129,8 @@ def sim_metrics(scenario: Scenario, period, duration: float) -> tuple[dict, dict
                            scenario.radius),
         "peak_speed": _num(speed.max()),
         "peak_speed_over_limit": _num(np.max(speed.max(axis=1) / scenario.v_max)),
+        "tracked_peak_speed_ratio": _num(np.max(speed.max(axis=1) / scenario.v_max)),
+        "tracked_peak_acc_ratio": _num(np.max(accn.max(axis=1) / scenario.a_max)),
         "tracking": {"rms_m": _num(np.sqrt(np.mean(err**2))), "max_m": _num(err.max()),
                      "per_robot_rms_m": [_num(x) for x in np.sqrt(np.mean(err**2, axis=1))]},
         "rotor_saturation": {"ticks": [int(x) for x in sat],
@@ -131,7 +139,10 @@ def sim_metrics(scenario: Scenario, period, duration: float) -> tuple[dict, dict
         "bad_references": int(np.asarray(period.bad_reference).sum()),
     }
     per_robot = [{"max_speed": _num(speed[i].max()), "max_acc": _num(accn[i].max()),
-                  "path_length_m": _num(path[i])} for i in range(pos.shape[0])]
+                  "path_length_m": _num(path[i]),
+                  "tracked_peak_speed_ratio": _num(speed[i].max() / scenario.v_max[i]),
+                  "tracked_peak_acc_ratio": _num(accn[i].max() / scenario.a_max[i])}
+                 for i in range(pos.shape[0])]
     arrays = {"t": t, "pos": pos, "vel": vel, "acc": acc,
               "min_dist": np.where(np.isfinite(min_dist), min_dist, np.nan),
               "track_err": err}
@@ -147,7 +158,10 @@ def merge_sim_metrics(metrics: dict, arrays: dict, scenario: Scenario, period) -
     contacts, the peak speed and the per-robot kinematics become the simulated states'
     (:func:`sim_metrics`; the planned maxima stay as ``planned_max_*``, and ``max_jerk``
     is None: no jerk sensor), tracking and rotor saturation are added, ``success`` is
-    judged again, and the samples of ``arrays`` become the control-rate samples.
+    judged again, and the samples of ``arrays`` become the control-rate samples.  The
+    keys of :func:`limit_metrics` stay the planned pieces'; the simulated vehicles' own
+    peaks are added beside them (``tracked_peak_speed_ratio``, ``tracked_peak_acc_ratio``,
+    fleet-wide and per robot; ``peak_speed_over_limit`` is the tracked one, as before).
     """
     over, sim_arrays = sim_metrics(scenario, period, metrics["duration_s"])
     s = over["sim"]
@@ -198,6 +212,8 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
                                          num_robots=M))
     frozen_robot = config.faults.frozen_robot if config.faults.enabled else -1
     reached, ttg, all_reached, makespan = _goals(final, duration, M, frozen_robot)
+    limits, limits_per_robot = limit_metrics(scenario, pieces, kin, final.reach_time, reached,
+                                             config.sim.goal_tolerance_m)
     info = records.info
     stalls = _stalls(config, scenario, records, reached, ttg, frozen_robot)
     arrays = _run_arrays(scenario, records, pieces, min_dist, duration)
@@ -238,11 +254,12 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
         "robots": M,
         "peak_speed": _num(np.nanmax(kin.max_speed)),
         "peak_speed_over_limit": _num(np.nanmax(kin.max_speed / scenario.v_max)),
+        **limits,
         "per_robot": [{**r, **x, "goal_departure_m": _num(d) if np.isfinite(d) else None,
-                       "settled_s": _num(s) if np.isfinite(s) else None}
-                      for r, x, d, s in zip(_per_robot(scenario, reached, ttg, kin, world),
-                                            stalls["per_robot"], departure, settled,
-                                            strict=True)],
+                       "settled_s": _num(s) if np.isfinite(s) else None, **lim}
+                      for r, x, d, s, lim in zip(_per_robot(scenario, reached, ttg, kin, world),
+                                                 stalls["per_robot"], departure, settled,
+                                                 limits_per_robot, strict=True)],
         "solver": _solver(info, solve_ms),
         "faults": _fault_summary(config, records, sep, min_dist, scenario, frozen_robot),
         "fallbacks": {
@@ -253,6 +270,55 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     }
     metrics["success"] = _success(metrics)
     return metrics, arrays
+
+
+def limit_metrics(scenario: Scenario, pieces, kin, reach_time, reached,
+                  goal_tolerance_m: float) -> tuple[dict, list[dict]]:
+    """What a real vehicle would have to fly: the peaks over each robot's own limits, how
+    far it strayed from its goal after reaching it, and how far it left its task's region;
+    every value exact, from the executed pieces (:mod:`jaxplan.metrics.excursion`).
+
+    Args:
+        scenario: the run's Scenario (its limits, starts, waypoints, world).
+        pieces: (seg_robot, seg_t0, seg_t1, seg_coeffs), the executed pieces.
+        kin: their :class:`jaxplan.metrics.motion.Kinematics`.
+        reach_time: (M, W) s, when each waypoint was reached (the rollout's; inf: not).
+        reached: (M, W) bool, each waypoint reached within the run.
+        goal_tolerance_m: m, the goal tolerance.
+    Returns:
+        (the fleet's keys, each robot's keys (M dicts)), None for NaN; the fleet's value
+        is the largest over the robots that have one (all robots, a frozen one too):
+        peak_speed_ratio, peak_acc_ratio, peak_jerk_ratio: max over time of |x'| / v_max,
+        |x''| / a_max, |x'''| / j_max with the robot's own limits;
+        goal_excursion_m: the largest |x - g| (g the last waypoint) from the first instant
+        within goal_tolerance_m of g (position only; searched from the rollout's reach
+        time of the waypoint before it, if any); null where that never happened;
+        escape_m: the largest of the centre's distance outside the fleet's box of starts
+        and waypoints grown by ESCAPE_MARGIN_M on every side and its distance outside the
+        world's workspace (its finite bounds); 0: never outside.
+    """
+    M = scenario.num_robots
+    per = {"peak_speed_ratio": kin.max_speed / scenario.v_max,
+           "peak_acc_ratio": kin.max_acc / scenario.a_max,
+           "peak_jerk_ratio": kin.max_jerk / scenario.j_max}
+    reach_time = np.asarray(reach_time, np.float64)
+    t_from = None
+    if reach_time.shape[1] > 1:
+        t_from = np.where(np.asarray(reached, bool)[:, -2], reach_time[:, -2], np.nan)
+    goal = np.asarray(scenario.waypoints[:, -1], np.float64)
+    per["goal_excursion_m"], _ = goal_excursion_pieces(*pieces, goal, goal_tolerance_m,
+                                                       t_from=t_from, num_robots=M)
+    lo, hi = fleet_box(scenario.start, scenario.waypoints, ESCAPE_MARGIN_M)
+    escape = escape_pieces(*pieces, lo, hi, num_robots=M)
+    world = scenario.world
+    if np.any(np.isfinite(world.lo)) or np.any(np.isfinite(world.hi)):
+        escape = np.fmax(escape, escape_pieces(*pieces, world.lo, world.hi, num_robots=M))
+    per["escape_m"] = escape
+    fleet = {k: _num(np.max(v[np.isfinite(v)])) if np.any(np.isfinite(v)) else None
+             for k, v in per.items()}
+    per_robot = [{k: _num(v[i]) if np.isfinite(v[i]) else None for k, v in per.items()}
+                 for i in range(M)]
+    return fleet, per_robot
 
 
 def goal_departure(t, pos, goal, reach_time):

@@ -45,6 +45,7 @@ COLUMNS = KEY_COLUMNS + (
     "min_workspace_clearance_m",
     "stalls", "stalled_s", "parked", "makespan_over_bound",
     "settled_makespan_s", "max_goal_departure_m",
+    "peak_acc_ratio", "peak_jerk_ratio", "goal_excursion_m", "escape_m",
 )
 ANALYSIS_COLUMNS = ("q_obs", "q_lim", "scenario", "seed", "success", "min_separation_ratio",
                     "makespan_s", "collisions")
@@ -374,5 +375,9 @@ def csv_row(point, metrics: dict | None, n_waypoints: int = 1, error: str = "") 
         "makespan_over_bound": _csv_cell(metrics.get("makespan_over_bound")),
         "settled_makespan_s": _csv_cell(metrics.get("settled_makespan_s")),
         "max_goal_departure_m": _csv_cell(metrics.get("max_goal_departure_m")),
+        "peak_acc_ratio": _csv_cell(metrics.get("peak_acc_ratio")),
+        "peak_jerk_ratio": _csv_cell(metrics.get("peak_jerk_ratio")),
+        "goal_excursion_m": _csv_cell(metrics.get("goal_excursion_m")),
+        "escape_m": _csv_cell(metrics.get("escape_m")),
     })
     return row
