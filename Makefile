@@ -45,7 +45,7 @@ paper: $(STAMP)
 sweep: $(STAMP)
 	$(VENV)/bin/jaxplan sweep experiments/sweeps/qobs_qlim.toml
 
-# docs/RESULTS.md: the paper scenarios (both backends), collision-mode, fault, world and stall tables
+# docs/RESULTS.md: the paper scenarios (both backends), collision-mode, fault, world, stall and baselines tables
 # (resumable; about two hours on 2 cores: see experiments/studies.py)
 studies: $(STAMP)
 	$(PY) experiments/studies.py paper --out sweeps/studies
@@ -53,6 +53,7 @@ studies: $(STAMP)
 	$(PY) experiments/studies.py faults --out sweeps/studies
 	$(PY) experiments/studies.py worlds --out sweeps/studies
 	$(PY) experiments/studies.py deadlock --resolutions auto off --off-seeds 3 --out sweeps/studies
+	$(PY) experiments/studies.py baselines --out sweeps/studies
 
 bench: $(STAMP)
 	$(VENV)/bin/jaxplan bench all --json bench.json --markdown docs/BENCHMARKS.md --readme README.md

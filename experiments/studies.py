@@ -5,8 +5,10 @@
     python experiments/studies.py faults    [--seeds N] [--out DIR] [--batch B] [--fleets F ...]
     python experiments/studies.py worlds    [--seeds N] [--out DIR] [--batch B] [--only W ...]
     python experiments/studies.py deadlock  [--seeds N] [--out DIR] [--batch B] [--only CELL ...]
+    python experiments/studies.py baselines [--seeds N] [--out DIR] [--methods M ...]
+                                            [--only FLEET ...]
     python experiments/studies.py results   [--out DIR]        (rebuild the page, run nothing)
-    ... collision|faults|deadlock|worlds --collect   (tabulate what --out holds, run nothing)
+    ... collision|faults|deadlock|worlds|baselines --collect  (tabulate what --out holds)
     make studies                            (every study into sweeps/studies/, as the page says)
 
 ``paper``: the paper's four scenarios (experiments/paper/*.toml), each under the ideal
@@ -40,6 +42,18 @@ otherwise); ``--off-seeds N`` caps the "off" cells of the planar and 3-D plane f
 where "off" stalls for the whole run (the benchmark fleets' "off" rows, compared with
 "auto" seed for seed, keep theirs: ``OFF_COMPARED``).  ``make studies`` runs
 ``deadlock --resolutions auto off --off-seeds 3``.
+
+``baselines``: the paper's planner against the planners a reader would use instead, in
+the same harness and on the same seeds: "krishnan" (the paper's planner, default
+settings), "orca" (RVO2 through pyrvo; planar fleets only), "orca3d" (RVO2-3D's
+algorithm in JAX; no obstacles) and the ablations of the paper's prediction
+("constant velocity": the others fly on at their current velocity; "static": they stay
+where they are), on the deadlock study's fleets without faults and the four worlds; "n/a"
+where a method does not apply.  The "krishnan" cells are the deadlock study's "auto" and
+the worlds study's sweep directories (run once for both studies).  ``--seeds N`` caps the
+other methods' seeds (default: the krishnan cell's).  "ms per replan or step": the runs'
+wall time over their replans (ORCA: steps of ``orca_time_step_s``), simulation included,
+one run at a time, where the cell ran whole in one call (else n/a).
 
 Each (study, setting, fleet) cell of ``collision``, ``faults`` and ``deadlock`` is one
 `jaxplan sweep` directory under ``--out``, so an interrupted study resumes where it
@@ -116,12 +130,25 @@ OFF_COMPARED = ("antipodal_10", "random_box_20", "antipodal_10, robot 0 frozen",
                 "random_box_20, robot 0 frozen")
 RESOLUTIONS = ("off", "auto", "sidestep")
 WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles")
-STUDIES = ("paper", "collision", "faults", "deadlock", "worlds")
+STUDIES = ("paper", "collision", "faults", "deadlock", "worlds", "baselines")
+# baselines: the methods compared ([planner] overrides) and the fleets: the deadlock
+# study's fleets without faults, then the worlds.  The paper's planner's cells are the
+# deadlock ("auto") and worlds studies' own sweep directories (run once for both).
+BASELINE_METHODS = {
+    "krishnan": {},
+    "orca": {"method": "orca"},
+    "orca3d": {"method": "orca3d"},
+    "constant velocity": {"prediction": "constant_velocity"},
+    "static": {"prediction": "static"},
+}
+BASELINE_FLEETS = [c for c in DEADLOCK_CELLS if c[4] is None] + [
+    (w, ROOT / "worlds" / f"{w}.toml", {}, 20, None) for w in WORLDS]
 
 # The page: one section per study, in this order.
 TITLES = {"paper": "The paper's four scenarios", "collision": "Collision modes",
           "faults": "Faults", "deadlock": "Stalls and the sidestep",
-          "worlds": "Worlds with obstacles"}
+          "worlds": "Worlds with obstacles",
+          "baselines": "Baselines: ORCA and ablations of the prediction"}
 INTRO = """\
 # Results
 
@@ -156,6 +183,15 @@ DEFAULT_NOTES = {
               "under mjx). Clearance: distance from a robot's centre to the obstacle's "
               "surface (or a workspace face) minus its radius, min over robots, time and "
               "runs. The worlds: jaxplan/scenarios/worlds.py.",
+    "baselines": "Each method in the same harness on the same seeds: its executed motion "
+                 "as pieces, the same exact metrics. krishnan: the paper's planner, default "
+                 "settings (its cells are the deadlock study's \"auto\" and the worlds "
+                 "study's). orca: RVO2 through pyrvo (planar only), agent radius the "
+                 "robot's plus safety_margin_m, the velocity change clamped to a_max per "
+                 "0.05 s step. orca3d: RVO2-3D's algorithm in JAX (no obstacles). constant "
+                 "velocity / static: the paper's planner predicting the others flying on at "
+                 "their current velocity / staying put. T/bound: makespan over "
+                 "max_i(D_i / v_max + v_max / a_max), median and max over successful runs.",
 }
 
 
@@ -216,13 +252,23 @@ def _cell(base: Path, seeds: int, out: Path, batch: int, *, planner=None, faults
     else:
         res = run_sweep(cfg, out, progress=sys.stderr.isatty(), batch_size=batch,
                         figures=False, echo=None)
+        if res.ran and not res.skipped:  # the whole cell ran now: its run time is whole
+            (out / "timing.json").write_text(json.dumps(
+                {"run_s": res.run_s, "compile_s": res.compile_s, "batch": res.batch_size,
+                 "runs": res.ran}) + "\n")
     rows, _ = read_sweep_csv(res.csv, older=COLLECT)
     num = lambda k: [float(r[k]) for r in rows if r[k] not in ("", "nan")]  # noqa: E731
     ms = num("makespan_s")
     total = lambda k: int(sum(num(k))) if rows and k in rows[0] else None  # noqa: E731
     low = lambda k: min(num(k), default=None) if rows and k in rows[0] else None  # noqa: E731
     ratio = num("makespan_over_bound")
+    timing = (json.loads((out / "timing.json").read_text())
+              if (out / "timing.json").exists() else None)
+    replans = sum(num("replans"))
     return {
+        # one run at a time: the runs' wall time per replan (or ORCA step), simulation in
+        "ms_per_replan": (1e3 * timing["run_s"] / replans
+                          if timing and timing["batch"] == 1 and replans else None),
         "obstacle_collisions_total": total("obstacle_collisions"),
         "workspace_violations_total": total("workspace_violations"),
         "min_obstacle_clearance_m": low("min_obstacle_clearance_m"),
@@ -448,6 +494,70 @@ def _worlds_study(a) -> tuple[str, dict]:
     return "\n".join(lines), results
 
 
+def _baseline_cell(a, name: str, base: Path, scenario: dict, seeds: int, method: str):
+    """One (fleet, method) cell of the baselines study: its results, or None where the
+    method does not apply (RVO2 through pyrvo is planar-only; neither ORCA has obstacles
+    in 3-D).  The paper's planner's cells are the deadlock and worlds studies' own."""
+    world = name in WORLDS
+    planar = "planar" in name
+    if (method == "orca" and not planar) or (method == "orca3d" and world):
+        return None
+    planner = dict(BASELINE_METHODS[method])
+    if method == "krishnan":
+        out = (a.out / "worlds" / f"{name}__{seeds}seeds" if world
+               else a.out / "deadlock" / f"{_slug(name)}__auto__{seeds}seeds")
+    else:
+        seeds = min(seeds, a.seeds) if a.seeds else seeds
+        out = a.out / "baselines" / f"{_slug(name)}__{_slug(method)}__{seeds}seeds"
+    if not world and not method.startswith("orca"):
+        planner.setdefault("deadlock", "auto")  # as the deadlock study's "auto" cells
+    if a.collect and not _complete(out, seeds):
+        return None
+    return _cell(base, seeds, out, a.batch, scenario=scenario, planner=planner)
+
+
+def _baselines_study(a) -> tuple[str, dict]:
+    fleets = BASELINE_FLEETS
+    if a.only:
+        names = [c[0] for c in fleets]
+        unknown = [k for k in a.only if k not in names]
+        if unknown:
+            raise SystemExit(f"studies.py: error: --only {unknown[0]!r}: choose from "
+                             f"{', '.join(repr(k) for k in names)}")
+        fleets = [c for c in fleets if c[0] in a.only]
+    methods = a.methods or tuple(BASELINE_METHODS)
+    results = {}
+    t0 = time.perf_counter()
+    for method in methods:
+        for name, base, scenario, seeds, _ in fleets:
+            print(f"[{time.perf_counter() - t0:7.0f} s] {name} / {method}", flush=True)
+            results[f"{name} | {method}"] = _baseline_cell(a, name, base, scenario, seeds,
+                                                           method)
+    f = lambda x, fmt="{:.2f}": "n/a" if x is None else fmt.format(x)  # noqa: E731
+    lines = ["| fleet | method | runs | success | runs with collisions | min d/rho "
+             "| T/bound median / max | peak speed / v_max | stalls per run "
+             "| ms per replan or step |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    order = {c[0]: i for i, c in enumerate(BASELINE_FLEETS)}
+    rank = {m: i for i, m in enumerate(BASELINE_METHODS)}
+    keys = sorted(results, key=lambda k: (order[k.split(" | ")[0]], rank[k.split(" | ")[1]]))
+    for key in keys:
+        r = results[key]
+        name, method = key.split(" | ")
+        shown = f"**{method}**" if method == "krishnan" else method
+        if r is None:
+            lines.append(f"| {name} | {shown} | - | n/a | n/a | n/a | n/a | n/a | n/a | n/a |")
+            continue
+        lines.append(f"| {name} | {shown} | {r['runs']} | {100 * r['success_rate']:.0f}% | "
+                     f"{r['runs_with_collisions']} | {r['min_separation_ratio']:.3f} | "
+                     f"{f(r['over_bound_median'])} / {f(r['over_bound_max'])} | "
+                     f"{r['peak_speed_ratio_max']:.2f} | "
+                     f"{r['stalls'] / max(1, r['runs']):.1f} | "
+                     f"{f(r['ms_per_replan'], '{:.1f}')} |")
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return "\n".join(lines), results
+
+
 # ---------------------------------------------------------------------------------------
 # docs/RESULTS.md
 # ---------------------------------------------------------------------------------------
@@ -513,14 +623,16 @@ def main(argv=None) -> int:
                     help="deadlock: at most this many seeds for the cells without the "
                          "resolution (the baseline) of the planar and 3-D plane fleets; "
                          "the benchmark fleets' (OFF_COMPARED) keep their seeds")
+    ap.add_argument("--methods", nargs="+", choices=tuple(BASELINE_METHODS),
+                    help="baselines: the methods to run (default all)")
     ap.add_argument("--collect", action="store_true",
                     help="collision, faults, deadlock, worlds: run nothing; tabulate the "
                          "sweep and run directories under --out as they are")
     ap.add_argument("--backends", nargs="+", choices=BACKENDS, default=BACKENDS,
                     help="paper, worlds: the backends to run (default both)")
     ap.add_argument("--only", nargs="+",
-                    help="only these settings (collision modes, fault names, paper scenarios "
-                         "or worlds)")
+                    help="only these settings (collision modes, fault names, paper scenarios, "
+                         "worlds, deadlock cells or baselines fleets)")
     ap.add_argument("--results", type=Path, default=RESULTS,
                     help="the results page to (re)write (default docs/RESULTS.md)")
     ap.add_argument("--no-results", action="store_true",
@@ -532,7 +644,7 @@ def main(argv=None) -> int:
         if a.study in ("collision", "faults", "worlds") and a.seeds is None:
             a.seeds = 20
         study = {"paper": _paper_study, "deadlock": _deadlock_study,
-                 "worlds": _worlds_study}.get(a.study, _sweep_study)
+                 "worlds": _worlds_study, "baselines": _baselines_study}.get(a.study, _sweep_study)
         table, aggregates = study(a)
         print(table)
         a.out.mkdir(parents=True, exist_ok=True)

@@ -201,6 +201,26 @@ def _run_periods(call, carry, steps: int, progress):
     return carry, records, run_s, ms
 
 
+def run_method(config: Config, scenario, *, progress: bool = False) -> RunResult:
+    """A baseline planner's run of ``scenario`` (``[planner] method`` "orca": RVO2
+    through pyrvo, :mod:`jaxplan.baselines.orca`; "orca3d": RVO2-3D in JAX,
+    :mod:`jaxplan.baselines.orca3d`, compile_s its step's compile); no files are
+    written.  Raises ValueError where the method refuses the scenario or the config."""
+    method = config.planner.method
+    if method == "orca":
+        from jaxplan.baselines.orca import run_orca
+
+        metrics, arrays, records, run_s = run_orca(config, scenario, progress=progress)
+        return RunResult(config, scenario, metrics, arrays, records, 0.0, run_s)
+    if method == "orca3d":
+        from jaxplan.baselines.orca3d import run_orca3d
+
+        metrics, arrays, records, run_s = run_orca3d(config, scenario, progress=progress)
+        return RunResult(config, scenario, metrics, arrays, records, metrics["compile_s"],
+                         run_s)
+    raise ValueError(f"[planner] method = {method!r}: no such baseline")
+
+
 def run(config: Config, *, progress: bool = False) -> RunResult:
     """Run one experiment (backend "ideal" or "mjx"); no files are written.
 
@@ -209,14 +229,11 @@ def run(config: Config, *, progress: bool = False) -> RunResult:
         progress: say on stderr that the planner compiles, then show progress over
             replans from the first one (a tqdm bar on a terminal, a line every 30 s
             otherwise: jaxplan.progress).
-    ``[planner] method = "orca"``: the ORCA baseline (jaxplan/baselines/orca.py).
+    ``[planner] method`` other than "krishnan": a baseline (:func:`run_method`).
     """
     scenario = build_scenario(config)
-    if config.planner.method == "orca":
-        from jaxplan.baselines.orca import run_orca
-
-        metrics, arrays, records, run_s = run_orca(config, scenario, progress=progress)
-        return RunResult(config, scenario, metrics, arrays, records, 0.0, run_s)
+    if config.planner.method != "krishnan":
+        return run_method(config, scenario, progress=progress)
     structure = structures(config)
     fp = fleet_params(config, scenario)
     task = task_of(config, scenario)

@@ -369,11 +369,14 @@ def test_traced_keys_run_at_their_bounds():
         assert result.compile_s == 0.0, (path, v)
 
 
-def test_orca_keys_run_at_their_bounds():
-    """Every accepted bound value of the ORCA baseline's keys runs a planar swap (RVO2;
-    nothing to compile), with finite metrics."""
-    pytest.importorskip("pyrvo")
-    doc = {"name": "bounds_orca", "sim": {"duration_s": 1.0}, "planner": {"method": "orca"},
+@pytest.mark.parametrize("method", ["orca", "orca3d"])
+def test_orca_keys_run_at_their_bounds(method):
+    """Every accepted bound value of the ORCA baseline's keys runs a planar swap (RVO2:
+    nothing to compile; RVO2-3D in JAX: one compiled step, its keys traced), with finite
+    metrics."""
+    if method == "orca":
+        pytest.importorskip("pyrvo")
+    doc = {"name": "bounds_orca", "sim": {"duration_s": 1.0}, "planner": {"method": method},
            "robots": [{"vehicle": "ground", "start": [0.0, 0.0], "goal": [2.0, 0.0]},
                       {"vehicle": "ground", "start": [2.0, 0.1], "goal": [0.0, 0.1]}]}
     for section, keys in ORCA.items():

@@ -58,6 +58,9 @@ def test_a_four_robot_swap_runs_through_jaxplan_run(tmp_path):
     assert main(["run", str(cfg), "--out", str(out), "--quiet", "--no-figures"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["robots"] == 4 and m["collisions"] == 0 and m["success"]
+    # stepwise velocities: the largest jump over a step within the clamp, no finite jerk
+    assert 0.5 < m["peak_acc_ratio"] <= 1.0 + 1e-4 and m["peak_jerk_ratio"] is None
+    assert m["peak_acc_ratio"] == max(r["peak_acc_ratio"] for r in m["per_robot"])
     assert m["duration_s"] == pytest.approx(8.0) and m["replans"] == 160
     z = np.load(out / "trajectories.npz", allow_pickle=False)
     assert z["seg_coeffs"].shape == (4 * 160, 2, 2)  # one straight piece per robot and step
@@ -166,7 +169,38 @@ def test_preferred_velocity_clamp_and_arrival_against_numpy(rng):
             assert np.isnan(s[i])
 
 
-def test_orca_is_planar_only_and_sweeps_refuse_it(tmp_path):
+def test_a_sweep_of_seeds_gives_each_runs_own_row(tmp_path):
+    """`jaxplan sweep` of an ORCA config: one row per seed, each the row of that seed's
+    `jaxplan run` (same metrics, cell for cell); a weight grid and Ray are refused."""
+    import dataclasses
+
+    from jaxplan.experiment import run
+    from jaxplan.sweep import SweepError, read_sweep_csv, run_sweep
+    from jaxplan.sweep.points import sweep_points
+    from jaxplan.sweep.table import csv_row
+
+    text = SWAP4.replace("[sim]", "[scenario]\nkind = \"random_box\"\ncount = 6\n"
+                         "box = [[-3.0, -3.0], [3.0, 3.0]]\n[sim]")
+    text = text[:text.index("[[robots]]")]
+    sweep = _config(text + "[sweep]\nseeds = [0, 1]\n")
+    res = run_sweep(sweep, tmp_path / "sweep", progress=False, echo=None)
+    rows, _ = read_sweep_csv(res.csv)
+    assert [r["seed"] for r in rows] == ["0", "1"] and res.compilations == 0
+    assert len({r["min_separation_ratio"] for r in rows}) == 2  # two different fleets
+    assert res.best is not None  # one weight pair: the best setting is the only one
+
+    for point, row in zip(sweep_points(sweep), rows, strict=True):
+        one = run(dataclasses.replace(sweep, seed=point.seed))
+        want = csv_row(point, one.metrics, one.scenario.num_waypoints)
+        assert row == want
+    grid = _config(text + "[sweep]\nseeds = [0]\nq_obs = [1.0, 2.0]\n")
+    with pytest.raises(SweepError, match=r"\[planner\] method = 'orca' has no weights"):
+        run_sweep(grid, tmp_path / "grid", progress=False, echo=None)
+    with pytest.raises(SweepError, match="local engine only"):
+        run_sweep(sweep, tmp_path / "ray", progress=False, echo=None, engine="ray")
+
+
+def test_orca_is_planar_only(tmp_path):
     text = """
 [planner]
 method = "orca"
@@ -180,8 +214,3 @@ goal = [1.0, 0.0, 1.0]
     cfg = tmp_path / "orca3d.toml"
     cfg.write_text(text)
     assert main(["run", str(cfg)]) == 2
-    from jaxplan.sweep import SweepError, run_sweep
-
-    sweep = _config(SWAP4 + "[sweep]\nseeds = [0, 1]\n")
-    with pytest.raises(SweepError, match="method = 'orca'"):
-        run_sweep(sweep, tmp_path / "sweep", progress=False, echo=None)

@@ -54,3 +54,41 @@ def test_off_seeds_caps_only_the_stalling_baselines(tmp_path, monkeypatch):
     assert set(studies.OFF_COMPARED) <= {c[0] for c in studies.DEADLOCK_CELLS}
     make = (STUDIES.parent.parent / "Makefile").read_text()
     assert "studies.py deadlock --resolutions auto off --off-seeds 3" in make
+
+
+def test_the_baselines_study_shares_the_planners_cells(tmp_path, monkeypatch):
+    """The baselines study's "krishnan" cells are the deadlock ("auto") and worlds
+    studies' sweep directories (with their configs: the same planner overrides), the
+    other methods' its own; RVO2 through pyrvo is not run on a 3-D fleet nor RVO2-3D in
+    a world with obstacles (their rows read n/a); ``make studies`` runs the study."""
+    studies = _studies()
+    seen = {}
+
+    def cell(base, n, out, batch, *, planner=None, scenario=None, faults=None):
+        seen[str(out.relative_to(tmp_path))] = (n, planner)
+        return dict(runs=n, success_rate=1.0, runs_with_collisions=0, min_separation_ratio=1.0,
+                    over_bound_median=1.0, over_bound_max=1.0, stalls=2 * n,
+                    peak_speed_ratio_max=1.0, ms_per_replan=None)
+
+    monkeypatch.setattr(studies, "_cell", cell)
+    assert studies.main(["baselines", "--out", str(tmp_path), "--no-results",
+                         "--seeds", "5"]) == 0
+    fleets = studies.BASELINE_FLEETS
+    assert seen["deadlock/planar_circle_24__auto__10seeds"] == (10, {"deadlock": "auto"})
+    assert seen["worlds/pillars__20seeds"] == (20, {})
+    assert seen["baselines/planar_box_20__static__5seeds"] == (
+        5, {"prediction": "static", "deadlock": "auto"})
+    assert seen["baselines/planar_box_10__orca__5seeds"] == (5, {"method": "orca"})
+    assert "baselines/antipodal_10__orca__5seeds" not in seen
+    assert "baselines/pillars__orca3d__5seeds" not in seen
+    assert seen["baselines/antipodal_10__orca3d__5seeds"] == (5, {"method": "orca3d"})
+    planar = sum("planar" in c[0] for c in fleets)
+    worlds = len(studies.WORLDS)
+    assert len(seen) == 5 * len(fleets) - (len(fleets) - planar) - worlds
+    table = (tmp_path / "baselines.md").read_text().splitlines()
+    assert len(table) == 2 + 5 * len(fleets)
+    assert "| antipodal_10 | orca | - | n/a |" in "\n".join(table)
+    assert "| planar box 10 | **krishnan** | 20 | 100% | 0 | 1.000 | 1.00 / 1.00 | 1.00 | 2.0 |" \
+        in table[2 + 5 * 10]
+    make = (STUDIES.parent.parent / "Makefile").read_text()
+    assert "studies.py baselines --out sweeps/studies" in make

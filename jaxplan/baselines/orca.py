@@ -32,9 +32,15 @@ The run's records have the planner's layout (:class:`jaxplan.rollout.StepRecord`
 trajectories.npz, the figures and the run directory are the planner's
 (:func:`jaxplan.metrics.report.compute_metrics` with replan_hz = 1 / dt); a step's
 status is CONVERGED (RVO2 always returns a velocity), and there are no iterations,
-stalls, sidesteps or fallbacks.  The pieces are straight: the metrics' accelerations and
-jerks read 0 (the velocity jumps by at most a_max dt at each step).  pyrvo is the
+stalls, sidesteps or fallbacks.  The pieces are straight (the velocity jumps by at most
+a_max dt at each step): peak_acc_ratio is the largest jump over dt over a_max, and
+peak_jerk_ratio is None (:func:`step_limits`).  pyrvo is the
 optional ``baselines`` extra.
+
+The harness around RVO2 (:func:`simulate`: preferred velocities, the clamp, the pieces,
+the waypoints, the records; :func:`run_orca`: the report) takes the velocity step as an
+engine, and serves any dimension N: :mod:`jaxplan.baselines.orca3d` (``method =
+"orca3d"``, RVO2-3D in JAX) runs through it too.
 """
 
 from __future__ import annotations
@@ -97,8 +103,8 @@ def obstacle_polygons(world: World | None, sides: int = DISC_SIDES) -> list[np.n
 
 
 def preferred_velocity(p, goal, v_max, a_max, dt):
-    """(M, 2) m/s: towards the goal at min(v_max, sqrt(2 a_max d), d / dt), d = |goal -
-    p| (module docstring); 0 at the goal.  p, goal (M, 2) m; v_max, a_max (M,)."""
+    """(M, N) m/s: towards the goal at min(v_max, sqrt(2 a_max d), d / dt), d = |goal -
+    p| (module docstring); 0 at the goal.  p, goal (M, N) m, any N; v_max, a_max (M,)."""
     d = goal - p
     dist = np.linalg.norm(d, axis=-1)
     speed = np.minimum(np.minimum(v_max, np.sqrt(2.0 * a_max * dist)), dist / dt)
@@ -107,7 +113,7 @@ def preferred_velocity(p, goal, v_max, a_max, dt):
 
 
 def clamp_change(v_old, v_new, a_max, dt):
-    """(M, 2) m/s: v_new with its change from v_old clamped to a_max dt (per robot)."""
+    """(M, N) m/s: v_new with its change from v_old clamped to a_max dt (per robot)."""
     dv = v_new - v_old
     n = np.linalg.norm(dv, axis=-1)
     lim = a_max * dt
@@ -118,7 +124,7 @@ def clamp_change(v_old, v_new, a_max, dt):
 def first_arrival(p, v, goal, tol, dt):
     """(M,) s in [0, dt], or NaN: the first instant at which p + v s is within ``tol`` of
     ``goal`` (the root of |p + v s - goal|^2 = tol^2 where the piece enters the ball).
-    p, v, goal (M, 2)."""
+    p, v, goal (M, N)."""
     e = p - goal
     a = np.sum(v * v, axis=-1)
     b = 2.0 * np.sum(v * e, axis=-1)
@@ -163,6 +169,35 @@ def velocities(sim, M: int) -> np.ndarray:
     return np.array([sim.get_agent_velocity(i).to_tuple() for i in range(M)], np.float64)
 
 
+class RVO2Engine:
+    """RVO2 (pyrvo) as :func:`simulate`'s engine: ``sim`` holds the fleet (its
+    single-precision positions are the record), ``M`` robots, step ``dt`` s."""
+
+    def __init__(self, sim, M: int, dt: float):
+        self.sim, self.M, self.dt = sim, M, dt
+
+    def velocities(self, p, v, pref):
+        """(M, 2) m/s: RVO2's new velocities, from its own p and v, towards pref (M, 2)."""
+        sim = self.sim
+        for i in range(self.M):
+            sim.set_agent_pref_velocity(i, (float(pref[i, 0]), float(pref[i, 1])))
+        sim.do_step()
+        return velocities(sim, self.M)
+
+    def advance(self, p, v_cmd):
+        """(p1, v1): RVO2's positions after the agents move from p at v_cmd for dt, and the
+        velocity of the straight piece between them (also RVO2's velocities now)."""
+        sim, M, dt = self.sim, self.M, self.dt
+        for i in range(M):
+            q = p[i] + v_cmd[i] * dt
+            sim.set_agent_position(i, (float(q[0]), float(q[1])))
+        p1 = positions(sim, M)  # RVO2's single-precision positions: the record
+        v1 = (p1 - p) / dt
+        for i in range(M):
+            sim.set_agent_velocity(i, (float(v1[i, 0]), float(v1[i, 1])))
+        return p1, v1
+
+
 def simulate_orca(config: Config, scenario: Scenario, progress=None):
     """Run ORCA on the scenario for ceil(duration_s / orca_time_step_s) steps.
 
@@ -178,14 +213,33 @@ def simulate_orca(config: Config, scenario: Scenario, progress=None):
     if config.sim.backend != "ideal":
         raise ValueError(f"{where}: [planner] method = 'orca' moves the robots itself: "
                          "sim.backend must be 'ideal'")
+    M = scenario.num_robots
+    sim = new_simulator(config, scenario)
+    engine = RVO2Engine(sim, M, float(config.planner.orca_time_step_s))
+    return simulate(config, scenario, engine, positions(sim, M), progress)
+
+
+def simulate(config: Config, scenario: Scenario, engine, p0: np.ndarray, progress=None):
+    """The ORCA harness, shared by the engines (module docstring): from p0 (M, N) m at
+    rest, ceil(duration_s / orca_time_step_s) steps of dt, each: the preferred velocities
+    towards the current waypoints, ``engine.velocities(p, v, pref)`` (M, N) m/s, the
+    change clamped to a_max dt, ``engine.advance(p, v_cmd)`` -> (p1, v1) where the step
+    ends and the velocity of its straight piece, the goal checks on the piece, the next
+    waypoint once every robot has reached the current one.
+
+    Returns (records: StepRecord of numpy arrays stacked over the K steps (t (K,), p, v,
+    a (K, M, N), one piece per robot and step: piece_t0, piece_t1 (K, M, 1),
+    piece_coeffs (K, M, 1, N, 2) monomials in t - piece_t0 seconds), final
+    (:class:`OrcaFinal`), step_ms (K,) wall time of each step, run_s).
+    ``progress``: optional callable(steps done).
+    """
     pc = config.planner
     dt = float(pc.orca_time_step_s)
     K = max(1, math.ceil(config.sim.duration_s / dt - 1e-9))
     M, W = scenario.num_robots, scenario.num_waypoints
     v_max, a_max = np.asarray(scenario.v_max), np.asarray(scenario.a_max)
     tol, speed_tol = config.sim.goal_tolerance_m, config.sim.goal_speed_tolerance_mps
-    sim = new_simulator(config, scenario)
-    p, v = positions(sim, M), np.zeros((M, 2))
+    p, v = p0, np.zeros_like(p0)
     wp = 0
     reached = np.zeros((M, W), bool)
     reach_time = np.full((M, W), np.inf)
@@ -197,22 +251,13 @@ def simulate_orca(config: Config, scenario: Scenario, progress=None):
         tick = time.perf_counter()
         goal = np.asarray(scenario.waypoints[:, wp], np.float64)
         pref = preferred_velocity(p, goal, v_max, a_max, dt)
-        for i in range(M):
-            sim.set_agent_pref_velocity(i, (float(pref[i, 0]), float(pref[i, 1])))
-        sim.do_step()
-        v_cmd = clamp_change(v, velocities(sim, M), a_max, dt)
-        for i in range(M):
-            q = p[i] + v_cmd[i] * dt
-            sim.set_agent_position(i, (float(q[0]), float(q[1])))
-        p1 = positions(sim, M)  # RVO2's single-precision positions: the record
-        v1 = (p1 - p) / dt
-        for i in range(M):
-            sim.set_agent_velocity(i, (float(v1[i, 0]), float(v1[i, 1])))
+        v_cmd = clamp_change(v, engine.velocities(p, v, pref), a_max, dt)
+        p1, v1 = engine.advance(p, v_cmd)
         ms[k] = 1e3 * (time.perf_counter() - tick)
         rec["t"].append(t0)
         rec["p"].append(p)
         rec["v"].append(v)
-        rec["c"].append(np.stack([p, v1], axis=-1))  # (M, 2, 2): p + v1 (t - t0)
+        rec["c"].append(np.stack([p, v1], axis=-1))  # (M, N, 2): p + v1 (t - t0)
         rec["wp"].append(wp)
         rec["goal"].append(goal)
         # the goal checks on the piece, then the next waypoint once all have arrived
@@ -251,13 +296,16 @@ def _records(rec: dict, dt: float, M: int) -> StepRecord:
                       info=info, comm=np.zeros((K, 3)))
 
 
-def run_orca(config: Config, scenario: Scenario, progress: bool = False):
+def run_orca(config: Config, scenario: Scenario, progress: bool = False, *,
+             simulator=simulate_orca):
     """``jaxplan run`` with ``[planner] method = "orca"``: simulate, then the planner's
     report (:func:`jaxplan.metrics.report.compute_metrics`, one replan per ORCA step).
 
     Returns (metrics, arrays, records, run_s): metrics.json's and trajectories.npz's
     dicts (compile_s 0, run_s the simulation's seconds), the StepRecord of
-    :func:`simulate_orca`.  ``progress``: a progress bar over the steps on stderr.
+    ``simulator`` (:func:`simulate_orca`, or another engine's with its signature and
+    returns: :func:`jaxplan.baselines.orca3d.simulate_orca3d`).  ``progress``: a
+    progress bar over the steps on stderr.
     """
     pc = config.planner
     bar = None
@@ -266,14 +314,32 @@ def run_orca(config: Config, scenario: Scenario, progress: bool = False):
 
         steps = max(1, math.ceil(config.sim.duration_s / pc.orca_time_step_s - 1e-9))
         bar = AfterFirstUpdate(steps, config.name, "step", leave=False)
-    records, final, ms, run_s = simulate_orca(config, scenario,
-                                              bar.set if bar is not None else None)
+    records, final, ms, run_s = simulator(config, scenario,
+                                          bar.set if bar is not None else None)
     if bar is not None:
         bar.close()
     # one "replan" per ORCA step: the report's periods are the steps
     stepped = dataclasses.replace(config, planner=dataclasses.replace(
         pc, replan_hz=1.0 / pc.orca_time_step_s))
     metrics, arrays = compute_metrics(stepped, scenario, records, final, ms)
+    step_limits(metrics, records, scenario, float(pc.orca_time_step_s))
     metrics["compile_s"] = 0.0
     metrics["run_s"] = run_s
     return metrics, arrays, records, run_s
+
+
+def step_limits(metrics: dict, records: StepRecord, scenario: Scenario, dt: float) -> None:
+    """Set ``metrics``' acceleration and jerk peaks (fleet and per robot) to what ORCA's
+    stepwise motion means: the pieces are straight, so their own accelerations read 0,
+    but the velocity jumps at every step; peak_acc_ratio is the largest jump over dt
+    (|v_k+1 - v_k| / dt, the step's mean acceleration, <= a_max by the clamp) over the
+    robot's a_max, and peak_jerk_ratio is None (a velocity step has no finite jerk)."""
+    c = np.asarray(records.piece_coeffs)[:, :, 0, :, 1]  # (K, M, N): each step's velocity
+    v = np.concatenate([np.zeros_like(c[:1]), c])  # from rest
+    jump = np.linalg.norm(np.diff(v, axis=0), axis=-1).max(axis=0) / dt  # (M,)
+    ratio = jump / np.asarray(scenario.a_max, np.float64)
+    metrics["peak_acc_ratio"] = float(ratio.max())
+    metrics["peak_jerk_ratio"] = None
+    for r, x in zip(metrics["per_robot"], ratio, strict=True):
+        r["peak_acc_ratio"] = float(x)
+        r["peak_jerk_ratio"] = None

@@ -89,6 +89,9 @@ def _parse(data: Any, source: str) -> Config:
     if sim.backend == "mjx" and N != 3:
         raise InvalidValue("sim.backend", "'mjx' simulates quadrotors and needs 3-D positions; "
                                           "use 'ideal' for a 2-D config")
+    if planner.method == "orca3d" and sim.backend != "ideal":
+        raise InvalidValue("sim.backend", "[planner] method 'orca3d' moves the robots itself; "
+                                          "use 'ideal'")
     if planner.method == "orca" and N != 2:
         raise InvalidValue("planner.method", "'orca' is planar-only for now (RVO2 works in "
                                              "the plane); give 2-D positions or use "
@@ -159,6 +162,11 @@ def _check_fleet(config: Config, goal_keys: list[str]) -> None:
         return f"robots[{i - n_gen}]" if i >= n_gen else f"generated robot {i}"
 
     _check_ground(fleet, n_gen)
+    if config.planner.method == "orca3d" and fleet.world.num_obstacles > 0:
+        raise InvalidValue("planner.method", f"'orca3d' takes no obstacles (RVO2-3D has none), "
+                                             f"and this world has {fleet.world.num_obstacles}; "
+                                             "remove them, or use 'krishnan' (or 'orca' for "
+                                             "a planar fleet)")
 
     problems = scenarios.scenario_problems(fleet, max_problems=1, label=label)
     if problems:

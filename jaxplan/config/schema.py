@@ -76,8 +76,9 @@ DEFAULT_GUIDE = "auto"
 # what each robot predicts the others will do (jaxplan/planner/views.py): the paper's
 # closed form; "constant_velocity" and "static" are ablations of it
 DEFAULT_PREDICTION = "min_time_jerk"
-# the planner: the paper's ("krishnan"), or the ORCA baseline (jaxplan/baselines/orca.py)
-PLANNER_METHODS = ("krishnan", "orca")
+# the planner: the paper's ("krishnan"), or the ORCA baseline: RVO2 through pyrvo ("orca",
+# jaxplan/baselines/orca.py), RVO2-3D in JAX ("orca3d", jaxplan/baselines/orca3d.py)
+PLANNER_METHODS = ("krishnan", "orca", "orca3d")
 DEFAULT_METHOD = "krishnan"
 DEFAULT_ORCA_NEIGHBOR_DIST_M = 5.0       # m: ORCA's neighbour distance (RVO2's neighborDist)
 DEFAULT_ORCA_MAX_NEIGHBORS = 10          # RVO2's maxNeighbors
@@ -211,9 +212,11 @@ class PlannerConfig:
     auto: on in a world with obstacles.
     prediction "min_time_jerk" | "constant_velocity" | "static": what each robot predicts
     the others will do (jaxplan/planner/views.py): the paper's closed form, or ablations.
-    method "krishnan" | "orca": the paper's planner, or the ORCA baseline through RVO2
-    (jaxplan/baselines/orca.py; planar fleets), with orca_neighbor_dist_m,
-    orca_max_neighbors, orca_time_horizon_s, orca_time_horizon_obst_s and
+    method "krishnan" | "orca" | "orca3d": the paper's planner, or the ORCA baseline:
+    "orca" through RVO2 (pyrvo; jaxplan/baselines/orca.py; planar fleets, obstacles as
+    polygons), "orca3d" RVO2-3D's algorithm in JAX (jaxplan/baselines/orca3d.py; planar
+    or 3-D fleets, no obstacles, backend "ideal"); both with orca_neighbor_dist_m,
+    orca_max_neighbors, orca_time_horizon_s, orca_time_horizon_obst_s ("orca" only) and
     orca_time_step_s (RVO2's neighborDist, maxNeighbors, timeHorizon, timeHorizonObst and
     timeStep).
     """

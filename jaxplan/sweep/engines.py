@@ -44,6 +44,11 @@ Shards (``shard=(I, N)``, for batch schedulers): only the grid points whose inde
 merges every shard file (and any sweep.csv already there) into sweep.csv, one row per
 key, in grid order, and draws the figures.
 
+Baselines.  A config whose ``[planner] method`` is a baseline (not "krishnan") sweeps
+seeds and scenarios only, under the local engine, each point through the method's own
+simulation in this process (:mod:`jaxplan.sweep.methods`); its rows have the same
+columns and metrics.
+
 Resuming.  Rows are keyed by (q_obs, q_lim, scenario, seed), the weights written with
 Python's ``repr`` (exact round trip).  After each batch its rows are appended to the
 CSV as complete lines in one write, under the file's lock
@@ -90,6 +95,7 @@ from jaxplan.files import append_lines, atomic_write_text, file_lock
 from jaxplan.progress import AfterFirstUpdate, NoProgress
 from jaxplan.sweep.batch import BatchRunner, CompileCounter, Tally
 from jaxplan.sweep.guard import guard_config
+from jaxplan.sweep.methods import MethodGridError, check_method_grid, run_method_points
 from jaxplan.sweep.points import SweepPoint, build_scenarios, sweep_points
 from jaxplan.sweep.table import SweepError, best_setting, csv_text, read_sweep_csv, row_key
 from jaxplan.world import static_rows
@@ -331,11 +337,14 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
     say = echo or (lambda s: None)
     where = config.source or config.name
     engine = config.sweep.engine if engine is None else engine
-    if config.planner.method != "krishnan":
-        raise SweepError(f"{where}: [planner] method = {config.planner.method!r}: sweeps run "
-                         "the paper's planner only for now; use `jaxplan run` per seed")
     if engine not in SWEEP_ENGINES:
         raise SweepError(f"engine {engine!r}: choose one of {', '.join(SWEEP_ENGINES)}")
+    baseline = config.planner.method != "krishnan"
+    if baseline:
+        try:
+            check_method_grid(config, engine)
+        except MethodGridError as e:
+            raise SweepError(f"{where}: {e}") from None
     if address is not None and engine != "ray":
         raise SweepError(f"a Ray address ({address}) needs the ray engine (--engine ray)")
     if shard is not None and not 0 <= shard[0] < shard[1]:
@@ -366,7 +375,9 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
         bar = (AfterFirstUpdate(len(points), config.name, "run", initial=skipped)
                if progress else NoProgress())
         try:
-            if engine == "ray":
+            if baseline:
+                run_method_points(config, todo, built, write, bar, tally)
+            elif engine == "ray":
                 from jaxplan.sweep import ray as sweep_ray
 
                 bar.start()
