@@ -194,6 +194,32 @@ def test_a_3d_fleet_runs_through_jaxplan_run(tmp_path):
     assert np.max(dv) <= np.max(scenario.a_max) * DT * (1 + 1e-9)
 
 
+def test_a_sweep_of_seeds_gives_each_runs_row(tmp_path):
+    """`jaxplan sweep` with method "orca3d": a grid of seeds of a generated fleet, each
+    row the row of that point's own run (cell for cell)."""
+    import dataclasses
+
+    from jaxplan.experiment import run_method
+    from jaxplan.sweep import read_sweep_csv, run_sweep
+    from jaxplan.sweep.points import build_scenarios, sweep_points
+    from jaxplan.sweep.table import csv_row
+
+    text = SPHERE6[:SPHERE6.index("[[robots]]")].replace("8.0", "4.0")
+    text += ('[scenario]\nkind = "antipodal_sphere"\ncount = 6\n'
+             '[sweep]\nseeds = [0, 1]\n')
+    config = parse_config(tomllib.loads(text))
+    res = run_sweep(config, tmp_path / "sweep", progress=False, echo=None)
+    rows, _ = read_sweep_csv(res.csv)
+    points = sweep_points(config)
+    assert len(rows) == len(points) == 2 and not any(r["error"] for r in rows)
+    built = build_scenarios(config, points)
+    for point, row in zip(points, rows, strict=True):
+        sc = built[(point.scenario, point.seed)]
+        one = run_method(dataclasses.replace(config, seed=point.seed), sc)
+        want = csv_row(point, one.metrics, sc.num_waypoints)
+        assert row == want
+
+
 def test_the_configs_it_refuses(tmp_path):
     pillar = '[[obstacles]]\nkind = "sphere"\ncenter = [5.0, 5.0, 5.0]\nradius = 0.3\n'
     with pytest.raises(ConfigError, match="planner.method: 'orca3d' takes no obstacles"):
