@@ -43,6 +43,7 @@ from jaxplan.planner import (
     braking_plan,
     fresh_views,
     initial_plan_state,
+    limited_braking_plan,
     replan,
 )
 from jaxplan.planner.stall import published_goals
@@ -208,7 +209,10 @@ def freeze(fp: FleetParams, task: Task, st: RolloutState, plans, structure: Roll
         return plans
     frozen = task.faults.frozen & (st.t >= task.faults.frozen_at)
     first = frozen & (st.t - fp.dt < task.faults.frozen_at)
-    brake = braking_plan(st.p, st.v, st.a, fp.limits.a_max, structure.planner)
+    if structure.planner.nlp.hard_limits:
+        brake = limited_braking_plan(st.p, st.v, st.a, fp.limits, structure.planner)
+    else:
+        brake = braking_plan(st.p, st.v, st.a, fp.limits.a_max, structure.planner)
     plan = tree_where(first, brake, tree_where(frozen, st.plans.plan.shift(fp.dt), plans.plan))
     return plans._replace(plan=plan)
 

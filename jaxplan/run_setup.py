@@ -76,6 +76,7 @@ def structures(config: Config, *, only_needed: bool = True,
         # the kinds matter only to static rows: without, the default (one program)
         static_kinds=ALL_KINDS if planner.static_slots(R) == 0 else
         world_kinds(sc.world) if static_kinds is None else tuple(static_kinds),
+        hard_limits=pc.limits == "hard",
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
     fc = config.faults

@@ -76,6 +76,10 @@ DEFAULT_GUIDE = "auto"
 # what each robot predicts the others will do (jaxplan/planner/views.py): the paper's
 # closed form; "constant_velocity" and "static" are ablations of it
 DEFAULT_PREDICTION = "min_time_jerk"
+# the dynamic limits: "soft" (the paper's penalty, q_lim) or "hard" (constraints, and only
+# plans within them fly: jaxplan/planner/choice.py)
+LIMIT_MODES = ("soft", "hard")
+DEFAULT_LIMITS = "soft"
 # the planner: the paper's ("krishnan"), or the ORCA baseline: RVO2 through pyrvo ("orca",
 # jaxplan/baselines/orca.py), RVO2-3D in JAX ("orca3d", jaxplan/baselines/orca3d.py)
 PLANNER_METHODS = ("krishnan", "orca", "orca3d")
@@ -212,6 +216,11 @@ class PlannerConfig:
     auto: on in a world with obstacles.
     prediction "min_time_jerk" | "constant_velocity" | "static": what each robot predicts
     the others will do (jaxplan/planner/views.py): the paper's closed form, or ablations.
+    limits "soft" | "hard": the paper's soft limits (the q_lim penalty alone), or hard
+    ones: the NLP constrains |v|, |a|, |j| at its limit samples, and a robot flies only a
+    plan whose speed, acceleration and jerk stay within its vehicle's limits at every
+    instant (a Bernstein bound), else its braking plan kept within them
+    (jaxplan/planner/choice.py).
     method "krishnan" | "orca" | "orca3d": the paper's planner, or the ORCA baseline:
     "orca" through RVO2 (pyrvo; jaxplan/baselines/orca.py; planar fleets, obstacles as
     polygons), "orca3d" RVO2-3D's algorithm in JAX (jaxplan/baselines/orca3d.py; planar
@@ -252,6 +261,7 @@ class PlannerConfig:
     sidestep_hold_mutual_s: number(gt=0.0, le=1e4) = DEFAULT_SIDESTEP_HOLD_MUTUAL_S
     guide: string(one_of(GUIDE_MODES)) = DEFAULT_GUIDE
     prediction: string(one_of(PREDICTIONS)) = DEFAULT_PREDICTION
+    limits: string(one_of(LIMIT_MODES)) = DEFAULT_LIMITS
     method: string(one_of(PLANNER_METHODS)) = DEFAULT_METHOD
     orca_neighbor_dist_m: number(gt=0.0, le=MAX_COORD) = DEFAULT_ORCA_NEIGHBOR_DIST_M
     orca_max_neighbors: integer(ge=1, le=MAX_ROBOTS) = DEFAULT_ORCA_MAX_NEIGHBORS

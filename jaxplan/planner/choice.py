@@ -13,10 +13,17 @@ its previous plan shifted to now while that has not run out (KEPT_PREVIOUS), a b
 plan that brings it to rest (BRAKING, :func:`braking_plan`): so a finite best-effort
 solve through a robot is not flown when a fallback violates less (:class:`Fallback`,
 counted in ``ReplanInfo.fallback``).  No NaN leaves this stage.
+
+With hard limits (``NLPStructure.hard_limits``, ``[planner] limits = "hard"``) a plan
+flies only if its speed, acceleration and jerk stay within the robot's vehicle limits at
+every instant (:func:`limit_ratio`, an upper bound): a solve beyond them is not accepted
+and neither it nor a previous plan beyond them is a fallback; the braking plan is then
+the one of :func:`limited_braking_plan`, kept within them.
 """
 
 from __future__ import annotations
 
+from math import comb
 from typing import NamedTuple
 
 import jax
@@ -28,11 +35,15 @@ from jaxplan.nlp.terms import STATIC_PRIORITY
 from jaxplan.planner.types import Fallback, FleetParams, FleetState, PlannerStructure, PlanState
 from jaxplan.predict import quintic_terms
 from jaxplan.pytree import tree_where
-from jaxplan.trajectory import Trajectory, compose_matrix
+from jaxplan.trajectory import Trajectory, _falling, compose_matrix
 from jaxplan.world import StaticRows, signed_distance
 
 CHECK_HORIZON_S = 1.5  # s: fallback plans are compared over this long (plan_violation)
 CHECK_SAMPLES = 32  # instants in (0, CHECK_HORIZON_S] (47 ms apart: 9 cm at 2 m/s)
+LIMIT_SUBDIVISIONS = 4  # hard limits: pieces per segment of a plan's peak bound
+LIMIT_TOL = 1e-3  # hard limits: a plan is within them up to this relative excess
+BRAKE_GROWTH = 1.25  # hard limits: the braking durations tried, T_b * BRAKE_GROWTH^k
+BRAKE_CANDIDATES = 16
 
 
 class Choice(NamedTuple):
@@ -68,8 +79,16 @@ def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol: solve.S
     prev = ps.plan.shift(fp.dt)
     prev_ok = ps.has_plan & (prev.duration > 0) & jnp.all(
         jnp.isfinite(prev.coeffs), axis=(-1, -2, -3))
-    brake = braking_plan(p, v, a, params.limits.a_max, structure)
     usable = finite & (sol.eq_violation <= 1e-6) & (sol.status != solve.NON_FINITE)
+    if nlp.hard_limits:  # only plans within the limits fly; the brake keeps to them
+        true_limits = type(params.limits)(*(jnp.broadcast_to(x, (M,)) for x in fp.limits))
+        brake = limited_braking_plan(p, v, a, true_limits, structure)
+        within = limit_ratio(sol.traj, true_limits) <= 1.0 + LIMIT_TOL
+        accepted = accepted & within
+        usable = usable & within
+        prev_ok = prev_ok & (limit_ratio(prev, true_limits) <= 1.0 + LIMIT_TOL)
+    else:
+        brake = braking_plan(p, v, a, params.limits.a_max, structure)
 
     # not accepted: the least violating of best effort, previous, braking (in that order
     # on ties); computed only when some robot needs it
@@ -153,6 +172,76 @@ def braking_plan(p, v, a, a_max, structure: PlannerStructure) -> Trajectory:
     ok = jnp.isfinite(Tb) & jnp.all(jnp.isfinite(one.coeffs), axis=(-1, -2, -3))
     hold = Trajectory.hold(p, 5, 1)
     one = tree_where(ok, one, hold)
+    return resample(one, structure.nlp.segments, structure.nlp.degree)
+
+
+def _bernstein(n: int, dtype) -> jax.Array:
+    """(n+1, n+1) B with b = B @ a: the Bernstein coefficients b of the degree-n
+    polynomial with monomial coefficients a on [0, 1]."""
+    return jnp.asarray([[comb(i, j) / comb(n, j) if j <= i else 0.0 for j in range(n + 1)]
+                        for i in range(n + 1)], dtype)
+
+
+def limit_ratio(plans: Trajectory, limits) -> jax.Array:
+    """(M,) an upper bound, over every instant of [0, T], of the largest of |x'| / v_max,
+    |x''| / a_max and |x'''| / j_max of each plan (after T a plan holds or coasts,
+    within its end's values); non-finite plans read inf.  ``limits``: (M,) Limits.
+
+    Each segment is cut into LIMIT_SUBDIVISIONS equal pieces; on each, a derivative is
+    a polynomial curve inside the convex hull of its Bernstein control points, so its
+    norm is at most theirs: the bound holds at every instant, not only at samples, and
+    comes within a few per cent of the true peak."""
+    c = plans.coeffs  # (M, S, N, K)
+    K = c.shape[-1]
+    Q = LIMIT_SUBDIVISIONS
+    h = jnp.diff(plans.breaks, axis=-1)  # (M, S)
+    valid = h > 0
+    h_eff = jnp.where(valid, h, 1.0)
+    A = jnp.stack([compose_matrix(q / Q, 1.0 / Q, K, c.dtype) for q in range(Q)])
+    cq = jnp.einsum("qmi,...i->...qm", A, c)  # (M, S, N, Q, K) in each piece's own sigma
+    worst = jnp.zeros(plans.duration.shape, c.dtype)
+    for k, tau in ((1, limits.v_max), (2, limits.a_max), (3, limits.j_max)):
+        n = K - 1 - k
+        f = jnp.asarray([_falling(i, k) for i in range(k, K)], c.dtype)
+        d = cq[..., k:] * f  # the k-th sigma-derivative, (M, S, N, Q, n+1)
+        b = jnp.einsum("ij,...j->...i", _bernstein(n, c.dtype), d)
+        norm = jnp.max(jnp.sqrt(jnp.sum(b * b, axis=-3)), axis=(-2, -1))  # (M, S)
+        peak = jnp.where(valid, norm * (Q / h_eff) ** k, 0.0)
+        worst = jnp.maximum(worst, jnp.max(peak, axis=-1) / tau)
+    return jnp.where(jnp.isfinite(worst), worst, jnp.inf)
+
+
+def _brake_quintic(p, v, a, Tb) -> Trajectory:
+    """One-segment rest-ended quintics (M,) from (p, v, a) over Tb (M,) to p + v Tb / 2."""
+    target = p + v * Tb[:, None] * 0.5
+    N = p.shape[-1]
+    ax = lambda x: [x[:, d] for d in range(N)]
+    zero = [jnp.zeros_like(Tb)] * N
+    rows = quintic_terms(ax(p), ax(v), ax(a), ax(target), zero, zero,
+                          jnp.ones_like(Tb, bool), Tb)
+    c = jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)  # (M, N, 6)
+    return Trajectory.from_normalized(c[:, None], Tb, coast=False)
+
+
+def limited_braking_plan(p, v, a, limits, structure: PlannerStructure) -> Trajectory:
+    """A plan that brings each robot from (p, v, a) to rest within its limits (hard limits).
+
+    The braking quintic of :func:`braking_plan` over the shortest of the durations
+    T_b BRAKE_GROWTH^k (k < BRAKE_CANDIDATES; T_b braking_plan's) whose speed,
+    acceleration and jerk stay within ``limits`` (:func:`limit_ratio`); where none does
+    (a state already beyond them) the least exceeding.  Finite for any input, as
+    :func:`braking_plan`."""
+    fin = lambda x: jnp.where(jnp.isfinite(x), x, 0.0)
+    p, v, a = fin(p), fin(v), fin(a)
+    speed = jnp.linalg.norm(v, axis=-1)
+    T0 = jnp.maximum(1.5 * speed / jnp.maximum(limits.a_max, 1e-3), 0.5)
+    grow = BRAKE_GROWTH ** jnp.arange(BRAKE_CANDIDATES, dtype=p.dtype)
+    ratios = jax.vmap(lambda g: limit_ratio(_brake_quintic(p, v, a, T0 * g), limits))(grow)
+    ok = ratios <= 1.0 + LIMIT_TOL  # (C, M)
+    k = jnp.where(jnp.any(ok, axis=0), jnp.argmax(ok, axis=0), jnp.argmin(ratios, axis=0))
+    one = _brake_quintic(p, v, a, T0 * grow[k])
+    fine = jnp.all(jnp.isfinite(one.coeffs), axis=(-1, -2, -3))
+    one = tree_where(fine, one, Trajectory.hold(p, 5, 1))
     return resample(one, structure.nlp.segments, structure.nlp.degree)
 
 
