@@ -46,7 +46,7 @@ sweep: $(STAMP)
 	$(VENV)/bin/jaxplan sweep experiments/sweeps/qobs_qlim.toml
 
 # docs/RESULTS.md: the paper scenarios (both backends), collision-mode, fault, world, stall and baselines tables
-# (resumable; about two hours on 2 cores: see experiments/studies.py)
+# (resumable; about three hours on 2 cores, an estimate: see experiments/studies.py)
 studies: $(STAMP)
 	$(PY) experiments/studies.py paper --out sweeps/studies
 	$(PY) experiments/studies.py collision --out sweeps/studies
