@@ -45,7 +45,9 @@ where "off" stalls for the whole run (the benchmark fleets' "off" rows, compared
 
 ``baselines``: the paper's planner against the planners a reader would use instead, in
 the same harness and on the same seeds: "krishnan" (the paper's planner, default
-settings), "orca" (RVO2 through pyrvo; planar fleets only), "orca3d" (RVO2-3D's
+settings), "orca" (RVO2 through pyrvo; planar fleets only; agent radius the robot's plus
+safety_margin_m, as the planner's), "orca, r = 0.3 m" (the same with the robot's radius
+alone, as the issue that asked for the baselines measured ORCA), "orca3d" (RVO2-3D's
 algorithm in JAX; no obstacles) and the ablations of the paper's prediction
 ("constant velocity": the others fly on at their current velocity; "static": they stay
 where they are), on the deadlock study's fleets without faults and the four worlds; "n/a"
@@ -137,6 +139,7 @@ STUDIES = ("paper", "collision", "faults", "deadlock", "worlds", "baselines")
 BASELINE_METHODS = {
     "krishnan": {},
     "orca": {"method": "orca"},
+    "orca, r = 0.3 m": {"method": "orca", "safety_margin_m": 0.0},
     "orca3d": {"method": "orca3d"},
     "constant velocity": {"prediction": "constant_velocity"},
     "static": {"prediction": "static"},
@@ -187,11 +190,13 @@ DEFAULT_NOTES = {
                  "as pieces, the same exact metrics. krishnan: the paper's planner, default "
                  "settings (its cells are the deadlock study's \"auto\" and the worlds "
                  "study's). orca: RVO2 through pyrvo (planar only), agent radius the "
-                 "robot's plus safety_margin_m, the velocity change clamped to a_max per "
-                 "0.05 s step. orca3d: RVO2-3D's algorithm in JAX (no obstacles). constant "
-                 "velocity / static: the paper's planner predicting the others flying on at "
-                 "their current velocity / staying put. T/bound: makespan over "
-                 "max_i(D_i / v_max + v_max / a_max), median and max over successful runs.",
+                 "robot's plus safety_margin_m (orca, r = 0.3 m: the robot's alone), the "
+                 "velocity change clamped to a_max per 0.05 s step. orca3d: RVO2-3D's "
+                 "algorithm in JAX (no obstacles). constant velocity / static: the paper's "
+                 "planner predicting the others flying on at their current velocity / "
+                 "staying put. T/bound: makespan over max_i(D_i / v_max + v_max / a_max), "
+                 "median and max over the runs in which every robot arrived (a collision "
+                 "or not: success counts those).",
 }
 
 
@@ -500,7 +505,8 @@ def _baseline_cell(a, name: str, base: Path, scenario: dict, seeds: int, method:
     in 3-D).  The paper's planner's cells are the deadlock and worlds studies' own."""
     world = name in WORLDS
     planar = "planar" in name
-    if (method == "orca" and not planar) or (method == "orca3d" and world):
+    if (method.startswith("orca,") or method == "orca") and not planar or (
+            method == "orca3d" and world):
         return None
     planner = dict(BASELINE_METHODS[method])
     if method == "krishnan":

@@ -652,7 +652,13 @@ def test_braking_plan_is_finite_for_any_state():
         p, v, a, np.full(n, 4.0), structure=structure))
     assert np.all(np.isfinite(b.coeffs)) and np.all(np.isfinite(b.breaks))
     np.testing.assert_allclose(np.asarray(Trajectory(*b).evaluate(0.0)), _fin(p), rtol=1e-12)
-    _count("braking_plan", n)
+    # the hard limits' braking plan too (limits per robot)
+    lim = Limits(np.full(n, 2.0), np.full(n, 4.0), np.full(n, 12.0))
+    b = jax.device_get(jax.jit(planner.limited_braking_plan, static_argnames="structure")(
+        p, v, a, lim, structure=structure))
+    assert np.all(np.isfinite(b.coeffs)) and np.all(np.isfinite(b.breaks))
+    np.testing.assert_allclose(np.asarray(Trajectory(*b).evaluate(0.0)), _fin(p), rtol=1e-12)
+    _count("braking_plan", 2 * n)
 
 
 # ====================================================================== config

@@ -84,11 +84,13 @@ def test_the_baselines_study_shares_the_planners_cells(tmp_path, monkeypatch):
     assert seen["baselines/antipodal_10__orca3d__5seeds"] == (5, {"method": "orca3d"})
     planar = sum("planar" in c[0] for c in fleets)
     worlds = len(studies.WORLDS)
-    assert len(seen) == 5 * len(fleets) - (len(fleets) - planar) - worlds
+    assert seen["baselines/planar_box_10__orca__r___0_3_m__5seeds"] == (
+        5, {"method": "orca", "safety_margin_m": 0.0})
+    assert len(seen) == 6 * len(fleets) - 2 * (len(fleets) - planar) - worlds
     table = (tmp_path / "baselines.md").read_text().splitlines()
-    assert len(table) == 2 + 5 * len(fleets)
+    assert len(table) == 2 + 6 * len(fleets)
     assert "| antipodal_10 | orca | - | n/a |" in "\n".join(table)
     assert "| planar box 10 | **krishnan** | 20 | 100% | 0 | 1.000 | 1.00 / 1.00 | 1.00 | 2.0 |" \
-        in table[2 + 5 * 10]
+        in table[2 + 6 * 10]
     make = (STUDIES.parent.parent / "Makefile").read_text()
     assert "studies.py baselines --out sweeps/studies" in make
