@@ -518,7 +518,14 @@ def _baseline_cell(a, name: str, base: Path, scenario: dict, seeds: int, method:
     if not world and not method.startswith("orca"):
         planner.setdefault("deadlock", "auto")  # as the deadlock study's "auto" cells
     if a.collect and not _complete(out, seeds):
-        return None
+        # tabulate the cell as a run with another --seeds left it: its most seeds
+        stem = out.name.rsplit("__", 1)[0]
+        found = sorted((int(m.group(1)), d) for d in out.parent.glob(f"{stem}__*seeds")
+                       if (m := re.fullmatch(r".*__(\d+)seeds", d.name))
+                       and _complete(d, int(m.group(1))))
+        if not found:
+            return None
+        seeds, out = found[-1]
     return _cell(base, seeds, out, a.batch, scenario=scenario, planner=planner)
 
 
