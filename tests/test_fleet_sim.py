@@ -218,9 +218,15 @@ def test_world_contacts_match_c_engine(sim):
     assert np.all(clear[2] > 0.5)                    # robot 2 stays clear of everything
     # metrics.json's "sim" block (backend mjx) carries the same report
     period = jax.tree.map(lambda *x: np.stack(x), *recs)
-    scenario = SimpleNamespace(radius=radius, v_max=np.full(3, 3.0), world=WORLD)
+    scenario = SimpleNamespace(radius=radius, v_max=np.full(3, 3.0), a_max=np.full(3, 6.0),
+                               world=WORLD)
     over, _ = sim_metrics(scenario, period, n * PERIOD)
     assert {k: over["sim"][k] for k in SIM_WORLD_KEYS} == rep
+    # the tracked vehicles' own peaks, each over its own limits
+    sim = over["sim"]
+    assert sim["tracked_peak_speed_ratio"] == sim["peak_speed_over_limit"] > 0
+    assert sim["tracked_peak_acc_ratio"] == max(
+        r["max_acc"] / 6.0 for r in over["per_robot"]) > 0
     # the report of an unbounded, empty world: nothing to count
     empty = sim_world_report(World.unbounded(3), np.zeros((2, 3, 0)), np.zeros((2, 3, 0)),
                              radius)
