@@ -157,22 +157,21 @@ def braking_plan(p, v, a, a_max, structure: PlannerStructure) -> Trajectory:
     and degree.  Finite for any input: non-finite entries of p, v, a count as 0 (as in
     :func:`jaxplan.predict.predict_arrays`), and a lane whose quintic overflows holds at p.
     """
-    fin = lambda x: jnp.where(jnp.isfinite(x), x, 0.0)
-    p, v, a = fin(p), fin(v), fin(a)
-    speed = jnp.linalg.norm(v, axis=-1)
-    Tb = jnp.maximum(1.5 * speed / jnp.maximum(a_max, 1e-3), 0.5)
-    target = p + v * Tb[:, None] * 0.5
-    N = p.shape[-1]
-    ax = lambda x: [x[:, d] for d in range(N)]
-    zero = [jnp.zeros_like(Tb)] * N
-    rows = quintic_terms(ax(p), ax(v), ax(a), ax(target), zero, zero,
-                          jnp.ones_like(Tb, bool), Tb)
-    c = jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)  # (M, N, 6)
-    one = Trajectory.from_normalized(c[:, None], Tb, coast=False)
+    p, v, a, Tb = _brake_start(p, v, a, a_max)
+    one = _brake_quintic(p, v, a, Tb)
     ok = jnp.isfinite(Tb) & jnp.all(jnp.isfinite(one.coeffs), axis=(-1, -2, -3))
     hold = Trajectory.hold(p, 5, 1)
     one = tree_where(ok, one, hold)
     return resample(one, structure.nlp.segments, structure.nlp.degree)
+
+
+def _brake_start(p, v, a, a_max):
+    """The braking plans' start (p, v, a with non-finite entries as 0) and their
+    duration T_b = max(1.5 |v| / a_max, 0.5 s), (M,)."""
+    fin = lambda x: jnp.where(jnp.isfinite(x), x, 0.0)
+    p, v, a = fin(p), fin(v), fin(a)
+    speed = jnp.linalg.norm(v, axis=-1)
+    return p, v, a, jnp.maximum(1.5 * speed / jnp.maximum(a_max, 1e-3), 0.5)
 
 
 def _bernstein(n: int, dtype) -> jax.Array:
@@ -231,10 +230,7 @@ def limited_braking_plan(p, v, a, limits, structure: PlannerStructure) -> Trajec
     acceleration and jerk stay within ``limits`` (:func:`limit_ratio`); where none does
     (a state already beyond them) the least exceeding.  Finite for any input, as
     :func:`braking_plan`."""
-    fin = lambda x: jnp.where(jnp.isfinite(x), x, 0.0)
-    p, v, a = fin(p), fin(v), fin(a)
-    speed = jnp.linalg.norm(v, axis=-1)
-    T0 = jnp.maximum(1.5 * speed / jnp.maximum(limits.a_max, 1e-3), 0.5)
+    p, v, a, T0 = _brake_start(p, v, a, limits.a_max)
     grow = BRAKE_GROWTH ** jnp.arange(BRAKE_CANDIDATES, dtype=p.dtype)
     ratios = jax.vmap(lambda g: limit_ratio(_brake_quintic(p, v, a, T0 * g), limits))(grow)
     ok = ratios <= 1.0 + LIMIT_TOL  # (C, M)
