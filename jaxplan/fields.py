@@ -49,7 +49,7 @@ __all__ = [
     "EndState",
 ]
 
-END_STATES = ("free", "rest")
+END_STATES = ("free", "rest", "auto")
 MAX_ROBOTS = 1024          # largest fleet a config or generator builds
 MAX_COORD = 1e6            # m or m/s: larger coordinates are a typo, not a plan
 MAX_TRIES = 1_000_000      # rejection-sampling budget per point

@@ -21,6 +21,10 @@ Goals and "reached" (the definition used everywhere)
   waypoint: until the end of the run).
 * A goal velocity (a non-rest end state with a given velocity) is planned as a fully
   defined end state (v = goal velocity, a = 0).
+* An "auto" waypoint is planned with a free end while the robot is farther from it
+  than :func:`auto_rest_distance` and with a rest end within it, so that the robot
+  arrives slowing down and stops there instead of flying through; it is reached as a
+  free end is (within ``goal_tolerance_m``; it is slow by then).
 """
 
 from __future__ import annotations
@@ -66,14 +70,17 @@ class Task(NamedTuple):
     """One scenario as traced arrays (add a leading axis for a batch).
 
     start: (M, N).  waypoints: (M, W, N).  rest: (M, W) bool (fully defined end state).
-    goal_velocity: (M, W, N) (used where ``rest``).  goal_tolerance: () m.
-    speed_tolerance: () m/s.  guide: the way round the static world to each goal
-    (:class:`jaxplan.planner.GuideField`, value (W, M, *G)), or None: no guide.
+    auto: (M, W) bool, an "auto" end (a rest end near the waypoint, a free end far from
+    it; never where ``rest``).  goal_velocity: (M, W, N) (used where ``rest``).
+    goal_tolerance: () m.  speed_tolerance: () m/s.  guide: the way round the static world
+    to each goal (:class:`jaxplan.planner.GuideField`, value (W, M, *G)), or None: no
+    guide.
     """
 
     start: jax.Array
     waypoints: jax.Array
     rest: jax.Array
+    auto: jax.Array
     goal_velocity: jax.Array
     goal_tolerance: jax.Array
     speed_tolerance: jax.Array
@@ -122,16 +129,30 @@ def guide_now(task: Task, wp) -> GuideField | None:
     return None if g is None else g._replace(value=g.value[wp])
 
 
-def current_goals(task: Task, wp, reached) -> Goals:
-    """The goals each robot plans to now: position, velocity and end kind, (M, N),
-    (M, N), (M,), and the guide to them (:func:`guide_now`)."""
+def auto_rest_distance(limits):
+    """(M,) m: how near its "auto" waypoint a robot plans a rest end there.
+
+    Twice the distance in which a robot at v_max stops within a_max and j_max (v^2 /
+    (2 a) braking, and v a / (2 j) more while the deceleration ramps up): room for the
+    replan period it flies before it sees the switch, and for a plan that brakes below
+    a_max."""
+    v, a, j = limits.v_max, limits.a_max, limits.j_max
+    return v * v / a + v * a / j
+
+
+def current_goals(task: Task, wp, reached, p, limits) -> Goals:
+    """The goals each robot plans to now, from where it is, p (M, N): position, velocity
+    and end kind, (M, N), (M, N), (M,), and the guide to them (:func:`guide_now`).
+    An "auto" waypoint is a rest end within :func:`auto_rest_distance` of p (limits:
+    each robot's own), a free end beyond."""
     M = task.start.shape[0]
     idx = jnp.arange(M)
     goal_p = task.waypoints[idx, wp]
     rest = task.rest[idx, wp]
     goal_v = jnp.where(rest[:, None], task.goal_velocity[idx, wp], 0.0)
+    near = jnp.linalg.norm(p - goal_p, axis=-1) <= auto_rest_distance(limits)
     settled = reached[idx, wp]
-    rest = rest | settled
+    rest = rest | settled | (task.auto[idx, wp] & near)
     goal_v = jnp.where(settled[:, None], 0.0, goal_v)
     return Goals(goal_p, goal_v, rest, guide_now(task, wp))
 
@@ -163,7 +184,7 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     """One replan period: plan, execute the first period exactly, check goals."""
     M = st.p.shape[0]
     dt = fp.dt
-    goals = current_goals(task, st.wp, st.reached)
+    goals = current_goals(task, st.wp, st.reached, st.p, fp.limits)
     # what the robots broadcast: a robot that sidesteps its sub-goal (jaxplan.planner.stall)
     pub = published_goals(st.plans.deadlock, goals.goal_p, goals.goal_v, goals.rest)
     comm, views, cstats = exchange(task, st, *pub, structure)

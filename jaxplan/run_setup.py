@@ -141,7 +141,8 @@ def task_of(config: Config, scenario: Scenario) -> Task:
     gv = np.where(scenario.has_goal_velocity[..., None], scenario.goal_velocity, 0.0)
     return Task(
         start=jnp.asarray(scenario.start), waypoints=jnp.asarray(scenario.waypoints),
-        rest=jnp.asarray(full), goal_velocity=jnp.asarray(gv),
+        rest=jnp.asarray(full), auto=jnp.asarray(scenario.auto & ~full),
+        goal_velocity=jnp.asarray(gv),
         goal_tolerance=jnp.asarray(config.sim.goal_tolerance_m),
         speed_tolerance=jnp.asarray(config.sim.goal_speed_tolerance_mps),
         faults=fault_params(config, scenario.start.shape[0]),

@@ -278,6 +278,24 @@ def test_generator_end_state_follows_planner():
     assert build_scenario(cfg).rest.all()
 
 
+def test_auto_end_states_reach_the_scenario():
+    """"auto" from [planner] (generators and robots without their own), per robot and
+    per waypoint; a waypoint with a goal velocity keeps it (auto never where rest or a
+    goal velocity is)."""
+    cfg = parse_config({"planner": {"end_state": "auto"},
+                        "scenario": {"kind": "grid_swap", "rows": 2, "cols": 2},
+                        "robots": [robot(start=[0, 8, 1], goal=[5, 8, 1]),
+                                   robot(start=[0, 9, 1], goal=None,
+                                         waypoints=[[3, 9, 1], [5, 9, 1], [6, 9, 1]],
+                                         end_state=["auto", "rest", "auto"],
+                                         goal_velocity=[[], [], [0.5, 0, 0]])]})
+    sc = build_scenario(cfg)
+    assert sc.auto[:5].all() and not sc.rest[:5].any()
+    assert sc.auto[5].tolist() == [True, False, False]
+    assert sc.rest[5].tolist() == [False, True, False] and sc.has_goal_velocity[5, 2]
+    assert not (sc.auto & (sc.rest | sc.has_goal_velocity)).any()
+
+
 def test_sweep_ranges():
     cfg = parse_config(two(sweep={"q_obs": {"log_min": -1, "log_max": 2, "num": 4},
                                   "q_lim": [0, 1, 10], "seeds": {"start": 3, "num": 3},

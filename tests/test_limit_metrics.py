@@ -246,3 +246,62 @@ def test_an_older_sweep_csv_without_the_limit_columns_still_reads(tmp_path):
         read_sweep_csv(p)  # resuming it would mix rows without the new columns
     (got,), _ = read_sweep_csv(p, older=True)
     assert [got[c] for c in new] == [""] * 4 and got["max_goal_departure_m"] == "1"
+
+
+# ------------------------------------------------------------- end_state = "auto"
+
+
+def test_an_auto_end_is_free_far_from_the_goal_and_rest_near_it():
+    """current_goals: an "auto" waypoint is a rest end within auto_rest_distance of
+    where the robot is (its own limits), a free end beyond; rest and free waypoints
+    keep their kind wherever the robot is."""
+    import jax.numpy as jnp
+
+    from jaxplan.nlp import Limits
+    from jaxplan.rollout import Task, auto_rest_distance, current_goals
+
+    lim = Limits(jnp.array([2.0, 1.0, 2.0, 2.0]), jnp.array([4.0, 2.0, 4.0, 4.0]),
+                 jnp.array([12.0, 6.0, 12.0, 12.0]))
+    D = np.asarray(auto_rest_distance(lim))
+    # v^2 / (2 a) braking and v a / (2 j) while the deceleration ramps, twice over
+    v, a, j = (np.asarray(x) for x in lim)
+    np.testing.assert_allclose(D, 2 * (v**2 / (2 * a) + v * a / (2 * j)))
+    goal = np.array([[5.0, 0.0, 1.0]] * 4)
+    rest = np.array([[False], [False], [True], [False]])
+    auto = np.array([[True], [True], [False], [False]])
+    task = Task(start=jnp.zeros((4, 3)), waypoints=jnp.asarray(goal[:, None]),
+                rest=jnp.asarray(rest), auto=jnp.asarray(auto),
+                goal_velocity=jnp.zeros((4, 1, 3)), goal_tolerance=jnp.asarray(0.1),
+                speed_tolerance=jnp.asarray(0.1), faults=None)
+    for dist, want in ((D * (1 + 1e-9), [False, False, True, False]),
+                       (D * (1 - 1e-9), [True, True, True, False])):
+        p = goal - np.stack([dist, np.zeros(4), np.zeros(4)], axis=1)
+        g = current_goals(task, 0, jnp.zeros((4, 1), bool), jnp.asarray(p), lim)
+        assert np.asarray(g.rest).tolist() == want
+        np.testing.assert_array_equal(np.asarray(g.goal_v), 0.0)
+
+
+def test_an_auto_end_arrives_and_stays(tiny_config, tiny_run):
+    """The tiny fleet flies through its free ends and comes back (exact goal excursion
+    well over 0.3 m); with end_state = "auto" (the same compiled program: the kind is
+    traced) every robot stays within goal_tolerance_m of its goal once there, and is
+    settled (still, within tolerance) soon after it first arrives."""
+    import dataclasses
+
+    from jaxplan.experiment import run
+
+    free = tiny_run.metrics
+    assert free["goal_excursion_m"] > 0.3
+    cfg = dataclasses.replace(tiny_config, planner=dataclasses.replace(tiny_config.planner,
+                                                                         end_state="auto"))
+    cfg = dataclasses.replace(cfg, robots=tuple(dataclasses.replace(r, end_state=("auto",))
+                                                for r in cfg.robots))
+    res = run(cfg)
+    m = res.metrics
+    assert res.compile_s == 0.0
+    assert np.asarray(res.scenario.auto).all() and not np.asarray(res.scenario.rest).any()
+    assert m["success"] and m["collisions"] == 0
+    tol = cfg.sim.goal_tolerance_m
+    assert m["goal_excursion_m"] <= tol + 1e-9, m["goal_excursion_m"]
+    assert m["settled_makespan_s"] <= m["makespan_s"] + 1.0
+    assert m["settled_makespan_s"] < free["settled_makespan_s"] - 1.0

@@ -30,8 +30,8 @@
 Robots: ``goal = [x, y, z]`` (one goal) or ``waypoints = [[x, y, z], ...]`` (several, in
 order; the fleet moves on when every robot reached waypoint w).  ``goal_velocity`` is
 one vector (the end velocity at the final waypoint) or a list with one entry per
-waypoint, ``[]`` meaning none there.  ``end_state`` is "free" | "rest" (all waypoints)
-or a list with one entry per waypoint; default ``planner.end_state``.  Robot indices in
+waypoint, ``[]`` meaning none there.  ``end_state`` is "free" | "rest" | "auto" (all
+waypoints) or a list with one entry per waypoint; default ``planner.end_state``.  Robot indices in
 messages count from 0 (``robots[0]`` is the first ``[[robots]]``).  Positions have 2
 (planar robots) or 3 coordinates; one config uses one N throughout.
 

@@ -124,13 +124,14 @@ def assemble_scenario(config: Config, validate: bool) -> Scenario:
             parts.append(PAPER_SCENARIOS[config.scenario.kind](seed=config.seed))
         else:  # validated below, as a whole fleet together with [[robots]]
             parts.append(config.scenario.params.build(seed=config.seed, validate=False))
-    starts, wps, rests, gvs, names = [], [], [], [], []
+    starts, wps, rests, autos, gvs, names = [], [], [], [], [], []
     for p in parts:
         for i in range(p.num_robots):
             names.append(p.vehicles[i])
             starts.append(p.start[i])
             wps.append(p.waypoints[i])
             rests.append(p.rest[i])
+            autos.append(p.auto[i])
             gvs.append([p.goal_velocity[i, w] if p.has_goal_velocity[i, w] else None
                         for w in range(p.num_waypoints)])
     for r in config.robots:
@@ -138,11 +139,12 @@ def assemble_scenario(config: Config, validate: bool) -> Scenario:
         starts.append(np.array(r.start))
         wps.append(np.array(r.waypoints))
         rests.append([e == "rest" for e in r.end_state])
+        autos.append([e == "auto" for e in r.end_state])
         gvs.append(list(r.goal_velocity))
     lim = config.limits
     N = len(starts[0])
     return scenarios.make_scenario(config.name, names, np.array(starts), wps, rests, gvs,
-                                   v_max=lim.v_max, a_max=lim.a_max, j_max=lim.j_max,
+                                   auto=autos, v_max=lim.v_max, a_max=lim.a_max, j_max=lim.j_max,
                                    world=config_world(config, parts[0].world if parts else None,
                                                       N),
                                    validate=validate)

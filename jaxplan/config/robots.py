@@ -37,7 +37,7 @@ class RobotConfig:
     """One [[robots]] entry, resolved.
 
     vehicle: name; start: (N,) m; waypoints: W goals of (N,) m; end_state: W of
-    "free" | "rest"; goal_velocity: W entries, each (N,) m/s or None (none given, or a
+    "free" | "rest" | "auto"; goal_velocity: W entries, each (N,) m/s or None (none given, or a
     rest end's zero one).
     """
 
@@ -89,7 +89,7 @@ def _end_states(raw: Any, W: int, info: ValidationInfo) -> tuple[str, ...]:
             raise FieldProblem(f"expected one entry per waypoint ({W}), got {len(raw)}",
                                key="end_state")
         return tuple(sub_value(EndState, e, f"end_state[{k}]", info) for k, e in enumerate(raw))
-    raise FieldProblem(f"expected 'free', 'rest' or a list of them, got {show(raw)}",
+    raise FieldProblem(f"expected 'free', 'rest', 'auto' or a list of them, got {show(raw)}",
                        key="end_state")
 
 

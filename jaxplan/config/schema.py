@@ -179,7 +179,8 @@ class PlannerConfig:
 
     replan_hz (Hz); q_dynm, q_obs, q_lim, k_t objective weights; k_p (1/m);
     collision in COLLISION_MODES; degree and segments of the polynomial per axis;
-    end_state "free" | "rest" (default for robots); max_iters (the solver's iteration
+    end_state "free" | "rest" | "auto" (default for robots; "auto": free far from the
+    goal, rest near it, jaxplan.rollout.current_goals); max_iters (the solver's iteration
     cap per replan); tol: the solver's feasibility tolerance (m^2, on d^2 - rho^2) and
     complementarity tolerance (SolverSettings.tol_feasibility and tol_complementarity);
     n_samples: collision samples per horizon, a multiple of 4 (4-point Gauss-Legendre

@@ -219,11 +219,12 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     arrays = _run_arrays(scenario, records, pieces, min_dist, duration)
     departure = goal_departure(arrays["t"], arrays["pos"], scenario.waypoints[:, -1], ttg)
     # from when each robot stays at its last waypoint to the end: within goal_tolerance_m
-    # (and, for a rest waypoint, at most goal_speed_tolerance_mps), as "reached" counts it
+    # (and, for a rest or auto waypoint, at most goal_speed_tolerance_mps)
     goal, tol = scenario.waypoints[:, -1], config.sim.goal_tolerance_m
     still = time_to_goal(arrays["t"], arrays["pos"], goal, tol, vel=arrays["vel"],
                             speed_tol=config.sim.goal_speed_tolerance_mps)
-    settled = np.where(np.asarray(scenario.rest)[:, -1], still,
+    settled = np.where(np.asarray(scenario.rest)[:, -1] | np.asarray(scenario.auto)[:, -1],
+                       still,
                        time_to_goal(arrays["t"], arrays["pos"], goal, tol))
     settled = np.where(reached[:, -1], settled, np.nan)
     responsive = np.arange(M) != frozen_robot

@@ -79,11 +79,12 @@ def _check_vec(x, dim, key) -> np.ndarray:
     return a
 
 
-def _check_end(end_state) -> bool:
+def _end_flags(end_state) -> dict[str, bool]:
+    """make_scenario's ``rest`` and ``auto`` for one end state of the whole fleet."""
     if end_state not in END_STATES:
-        raise ScenarioError(f"end_state: expected 'free' or 'rest', got {end_state!r}",
-                            key="end_state")
-    return end_state == "rest"
+        raise ScenarioError(f"end_state: expected one of {', '.join(map(repr, END_STATES))}, "
+                            f"got {end_state!r}", key="end_state")
+    return {"rest": end_state == "rest", "auto": end_state == "auto"}
 
 
 def random_in_ball(rng: np.random.Generator, n: int, dim: int, r: float) -> np.ndarray:
@@ -223,7 +224,7 @@ def antipodal_sphere(
             this radius, m (breaks exact symmetry; seeds differ).
         min_spacing: start spacing for "random", m; default max(r_i + r_j) + SAFETY_MARGIN.
         max_tries: candidate budget per robot for "random".
-        end_state: "free" | "rest" at the goal.
+        end_state: "free" | "rest" | "auto" at the goal.
         validate: check the result with validate_scenario (raises ScenarioError).
     Returns: a one-waypoint Scenario named "antipodal_sphere".
     """
@@ -231,7 +232,7 @@ def antipodal_sphere(
     radius = _check_pos(radius, "radius")
     seed = check_seed(seed)
     dim = _check_dim(dim)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     perturbation = _check_pos(perturbation, "perturbation", strict=False)
     names = cycle_vehicles(vehicles, count)
     c = _antipodal_center(radius, dim) if center is None else _check_vec(center, dim, "center")
@@ -261,7 +262,7 @@ def antipodal_sphere(
                             key="placement")
     start = c + radius * unit
     goal = c - radius * unit + random_in_ball(rng, count, dim, perturbation)
-    return make_scenario("antipodal_sphere", names, start, goal, rest, validate=validate)
+    return make_scenario("antipodal_sphere", names, start, goal, **ends, validate=validate)
 
 
 def _default_box(dim: int) -> np.ndarray:
@@ -316,11 +317,11 @@ def random_box(
         goal_spacing: minimum goal-goal distance, m; default min_spacing.
         min_travel: minimum distance from each robot's start to its goal, m.
         max_tries: candidate budget per point; a ScenarioError says which robot failed.
-        end_state: "free" | "rest" at the goal.
+        end_state: "free" | "rest" | "auto" at the goal.
     """
     count = _check_count(count)
     seed = check_seed(seed)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     names = cycle_vehicles(vehicles, count)
     b = _default_box(3) if box is None else np.asarray(box, dtype=np.float64)
     if b.ndim != 2 or b.shape[0] != 2 or b.shape[1] not in (2, 3) or not np.all(np.isfinite(b)):
@@ -347,7 +348,7 @@ def random_box(
         return np.linalg.norm(cand - start[i], axis=1) >= travel
 
     goal = _place(rng, count, sample, gsp, int(max_tries), "goal", ok=far)
-    return make_scenario("random_box", names, start, goal, rest, validate=validate)
+    return make_scenario("random_box", names, start, goal, **ends, validate=validate)
 
 
 def _grid_center(dim: int) -> np.ndarray:
@@ -404,7 +405,7 @@ def grid_swap(
     spacing = _check_pos(spacing, "spacing")
     seed = check_seed(seed)
     dim = _check_dim(dim)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     jitter = _check_pos(jitter, "jitter", strict=False)
     count = rows * cols
     names = cycle_vehicles(vehicles, count)
@@ -416,7 +417,7 @@ def grid_swap(
     rng = np.random.default_rng(seed)
     start = c + off + random_in_ball(rng, count, dim, jitter)
     goal = c - off + random_in_ball(rng, count, dim, jitter)
-    return make_scenario("grid_swap", names, start, goal, rest, validate=validate)
+    return make_scenario("grid_swap", names, start, goal, **ends, validate=validate)
 
 
 def _stack_base(dim: int) -> np.ndarray:
@@ -475,7 +476,7 @@ def stacked(
     row_spacing = _check_pos(row_spacing, "row_spacing")
     seed = check_seed(seed)
     dim = _check_dim(dim)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     jitter = _check_pos(jitter, "jitter", strict=False)
     if jitter >= spacing / 2:
         raise ScenarioError(f"jitter: must be below half the stack spacing ({spacing / 2:.3g} m)"
@@ -491,7 +492,7 @@ def stacked(
     rng = np.random.default_rng(seed)
     start = start + random_in_ball(rng, count, dim, jitter)
     goal = goal + random_in_ball(rng, count, dim, jitter)
-    return make_scenario("stacked", names, start, goal, rest, validate=validate)
+    return make_scenario("stacked", names, start, goal, **ends, validate=validate)
 
 
 # ------------------------------------------------------------------- antipodal circle
@@ -546,14 +547,14 @@ def antipodal_circle(
     Args:
         count: M robots.  radius: m.  vehicles: names cycled over the robots.
         seed: numpy Generator seed.  center: (dim,) m; default (0, 0) in 2-D,
-            (0, 0, 2) in 3-D.  end_state: "free" | "rest" at the goal.
+            (0, 0, 2) in 3-D.  end_state: "free" | "rest" | "auto" at the goal.
     Returns: a one-waypoint Scenario named "antipodal_circle".
     """
     count = _check_count(count)
     radius = _check_pos(radius, "radius")
     seed = check_seed(seed)
     dim = _check_dim(dim)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     jitter = _check_pos(angle_jitter_deg, "angle_jitter_deg", strict=False)
     perturbation = _check_pos(perturbation, "perturbation", strict=False)
     names = cycle_vehicles(vehicles, count)
@@ -565,4 +566,4 @@ def antipodal_circle(
     unit[:, 0], unit[:, 1] = np.cos(ang), np.sin(ang)
     start = c + radius * unit
     goal = c - radius * unit + random_in_ball(rng, count, dim, perturbation)
-    return make_scenario("antipodal_circle", names, start, goal, rest, validate=validate)
+    return make_scenario("antipodal_circle", names, start, goal, **ends, validate=validate)

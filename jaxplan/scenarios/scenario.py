@@ -46,6 +46,9 @@ class Scenario:
         start: (M, N) start positions, m (rest: v = a = 0).
         waypoints: (M, W, N) goals in order, m; shorter lists padded by repeating the last.
         rest: (M, W) True = rest end state (v = a = 0) at that waypoint, False = free end.
+        auto: (M, W) True = "auto" end: a free end while the robot is far from that
+            waypoint, a rest end near it (:func:`jaxplan.rollout.current_goals`); never
+            True where ``rest`` or ``has_goal_velocity`` is.  Default: none.
         goal_velocity: (M, W, N) m/s, zeros unless ``has_goal_velocity``.
         has_goal_velocity: (M, W) True = free end with the given end velocity.
         radius: (M,) collision radius, m.
@@ -68,8 +71,11 @@ class Scenario:
     a_max: np.ndarray
     j_max: np.ndarray
     world: World | None = None
+    auto: np.ndarray | None = None
 
     def __post_init__(self):
+        if self.auto is None:
+            object.__setattr__(self, "auto", _readonly(np.zeros(np.shape(self.rest), bool)))
         if self.world is None:
             object.__setattr__(self, "world", World.default(int(self.start.shape[1])))
         elif self.world.dim != self.start.shape[1]:
@@ -164,6 +170,7 @@ def make_scenario(
     rest=False,
     goal_velocity=None,
     *,
+    auto=False,
     v_max=None,
     a_max=None,
     j_max=None,
@@ -179,6 +186,8 @@ def make_scenario(
         waypoints: (M, N) one goal each, (M, W, N), or a length-M sequence of per-robot
             (W_i, N) goal lists (shorter lists are padded by repeating the last goal).
         rest: a bool for all, (M,) per robot, (M, W), or per-robot sequences of W_i bools.
+        auto: the waypoints with an "auto" end (:class:`Scenario`), given as ``rest`` is;
+            where ``rest`` or a goal velocity is given too, those win.
         goal_velocity: None, or per robot a length-W_i sequence of (N,) velocities or
             None (no end velocity at that waypoint), or an (M, W, N) array (all given).
         v_max, a_max, j_max: scalar or (M,) limit overrides; default per vehicle.
@@ -199,6 +208,7 @@ def make_scenario(
     wp, lengths = _waypoint_array(waypoints, M, start.shape[1])
     rest_arr = _rest_array(rest, lengths)
     gv, has = _goal_velocity_arrays(goal_velocity, rest_arr, wp.shape[2])
+    auto_arr = _rest_array(auto, lengths, "auto") & ~rest_arr & ~has
     limits = {key: _limit_array(val, key, vehicles)
               for key, val in (("v_max", v_max), ("a_max", a_max), ("j_max", j_max))}
     sc = Scenario(
@@ -212,6 +222,7 @@ def make_scenario(
         radius=_readonly(np.array([ROBOTS[v].radius for v in vehicles], dtype=np.float64)),
         **{k: _readonly(v) for k, v in limits.items()},
         world=world,
+        auto=_readonly(auto_arr),
     )
     if validate:
         validate_scenario(sc)
@@ -236,8 +247,9 @@ def _waypoint_array(waypoints, M: int, N: int) -> tuple[np.ndarray, list[int]]:
     return np.array(_pad(wp_lists), dtype=np.float64).reshape(M, max(lengths), N), lengths
 
 
-def _rest_array(rest, lengths: list[int]) -> np.ndarray:
-    """(M, W) rest flags from a bool, per-robot flags or per-robot per-waypoint flags."""
+def _rest_array(rest, lengths: list[int], key: str = "rest") -> np.ndarray:
+    """(M, W) flags (``key``: which) from a bool, per-robot flags or per-robot
+    per-waypoint flags."""
     M, W = len(lengths), max(lengths)
     if isinstance(rest, (bool, np.bool_, int, np.integer)):
         rest_lists = [[bool(rest)] * n for n in lengths]
@@ -248,10 +260,11 @@ def _rest_array(rest, lengths: list[int]) -> np.ndarray:
             if r.shape == (1,) and lengths[i] > 1:
                 r = np.repeat(r, lengths[i])
             if r.ndim != 1 or len(r) not in (lengths[i], W):
-                raise ScenarioError(f"rest: robot {i}: expected {lengths[i]} flags, got {r.shape}")
+                raise ScenarioError(f"{key}: robot {i}: expected {lengths[i]} flags, "
+                                    f"got {r.shape}")
             rest_lists.append(list(r))
         if len(rest_lists) != M:
-            raise ScenarioError(f"rest: expected {M} robots, got {len(rest_lists)}")
+            raise ScenarioError(f"{key}: expected {M} robots, got {len(rest_lists)}")
     return np.array(_pad(rest_lists), dtype=bool).reshape(M, W)
 
 

@@ -52,8 +52,8 @@ from jaxplan.fields import (
 )
 from jaxplan.scenarios.generators import (
     _check_count,
-    _check_end,
     _check_pos,
+    _end_flags,
     check_seed,
     default_spacing,
 )
@@ -107,7 +107,7 @@ def pillars(count: int = 12, seed: int = 0, *, half_length: float = 5.5,
     """Two groups cross a field of pillars (module doc)."""
     count = _check_count(count)
     seed = check_seed(seed)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     rng = np.random.default_rng(seed)
     names = cycle_vehicles(vehicles, count)
     obstacles = []
@@ -126,7 +126,7 @@ def pillars(count: int = 12, seed: int = 0, *, half_length: float = 5.5,
     start = np.stack([side * half_length, lateral, z], 1) + _jitter(rng, count, 0.15)
     goal = np.stack([-side * half_length, -lateral, z], 1) + _jitter(rng, count, 0.15)
     world = _world([-np.inf, -np.inf, 0.0], [np.inf, np.inf, height], obstacles)
-    return make_scenario("pillars", names, start, goal, rest, world=world, validate=validate)
+    return make_scenario("pillars", names, start, goal, **ends, world=world, validate=validate)
 
 
 # ------------------------------------------------------------------------------ wall_gap
@@ -156,7 +156,7 @@ def wall_gap(count: int = 12, seed: int = 0, *, gap: float = 1.5, distance: floa
     if count % 2:
         raise ScenarioError(f"count: must be even (two equal groups), got {count}", key="count")
     seed = check_seed(seed)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     gap = _check_pos(gap, "gap")
     if gap >= 2 * half_width:
         raise ScenarioError(f"gap: must be narrower than the wall ({2 * half_width:g} m)",
@@ -177,7 +177,7 @@ def wall_gap(count: int = 12, seed: int = 0, *, gap: float = 1.5, distance: floa
     start = np.concatenate([a, b]) + _jitter(rng, count, jitter)
     goal = np.concatenate([b * [1, -1, 1], a * [1, -1, 1]]) + _jitter(rng, count, jitter)
     world = _world([-np.inf, -half_width, 0.0], [np.inf, half_width, height], obstacles)
-    return make_scenario("wall_gap", names, start, goal, rest, world=world, validate=validate)
+    return make_scenario("wall_gap", names, start, goal, **ends, world=world, validate=validate)
 
 
 # ---------------------------------------------------------------------------- low_ceiling
@@ -202,7 +202,7 @@ def low_ceiling(count: int = 10, seed: int = 0, *, radius: float = 4.0, ceiling:
     """An antipodal circle under a low ceiling (module doc)."""
     count = _check_count(count)
     seed = check_seed(seed)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     radius = _check_pos(radius, "radius")
     ceiling = _check_pos(ceiling, "ceiling")
     rng = np.random.default_rng(seed)
@@ -214,7 +214,7 @@ def low_ceiling(count: int = 10, seed: int = 0, *, radius: float = 4.0, ceiling:
     start = c + radius * unit + dz
     goal = c - radius * unit + rng.uniform(-jitter, jitter, (count, 1)) * [0, 0, 1]
     world = _world([-np.inf, -np.inf, 0.0], [np.inf, np.inf, ceiling], [])
-    return make_scenario("low_ceiling", names, start, goal, rest, world=world, validate=validate)
+    return make_scenario("low_ceiling", names, start, goal, **ends, world=world, validate=validate)
 
 
 # ---------------------------------------------------------------------- random_obstacles
@@ -248,7 +248,7 @@ def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
     """Random robots among random obstacles (module doc)."""
     count = _check_count(count)
     seed = check_seed(seed)
-    rest = _check_end(end_state)
+    ends = _end_flags(end_state)
     if not 0.0 < density < 1.0:
         raise ScenarioError(f"density: must lie in (0, 1), got {density}", key="density")
     rng = np.random.default_rng(seed)
@@ -308,5 +308,5 @@ def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
         start.append(draw(start))
     for i in range(count):
         goal.append(draw(goal, start[i]))
-    return make_scenario("random_obstacles", names, np.array(start), np.array(goal), rest,
+    return make_scenario("random_obstacles", names, np.array(start), np.array(goal), **ends,
                          world=world, validate=validate)

@@ -72,7 +72,7 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     pick = lambda r, m: jnp.where(agree[:, None], r, m)
     p, v, a = pick(pr, pm), pick(vr, vm), pick(ar, am)
     st = st._replace(t=t, p=p, v=v, a=a)
-    goals = current_goals(task, st.wp, st.reached)
+    goals = current_goals(task, st.wp, st.reached, p, fp.limits)
     # the others are seen as measured
     views = fresh_views(pm, vm, am, *published_goals(st.plans.deadlock, goals.goal_p,
                                                      goals.goal_v, goals.rest))

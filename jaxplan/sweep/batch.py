@@ -123,6 +123,7 @@ def pad_robots(fp, task: Task, m_pad: int):
         waypoints=np.concatenate([np.asarray(task.waypoints),
                                   np.repeat(park[:, None, :], W, axis=1)]),
         rest=cat(task.rest, True),
+        auto=cat(task.auto, False),
         goal_velocity=cat(task.goal_velocity, 0.0),
         faults=task.faults._replace(frozen=cat(task.faults.frozen, False)),
         guide=None if task.guide is None else task.guide._replace(value=np.concatenate(

@@ -90,7 +90,7 @@ def _run_config(config: Config, run_config: Config, point: SweepPoint, row: int,
 
 
 def _same_scenario(a, b) -> bool:
-    fields = ("start", "waypoints", "radius", "v_max", "a_max", "j_max", "rest")
+    fields = ("start", "waypoints", "radius", "v_max", "a_max", "j_max", "rest", "auto")
     return all(np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f)))
                for f in fields)
 
