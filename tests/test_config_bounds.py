@@ -369,6 +369,25 @@ def test_traced_keys_run_at_their_bounds():
         assert result.compile_s == 0.0, (path, v)
 
 
+def test_no_weight_breaks_the_hard_limits():
+    """[planner] limits = "hard": every weight at each end of its accepted range (and 0
+    where accepted), and each vehicle limit at its bounds, gives a run whose executed
+    pieces keep within the vehicles' limits at every instant (the exact peak ratios of
+    metrics.json).  With soft limits k_t = 1e6 flies the swap at 1.35 v_max and q_dynm =
+    1e-6 at 4 j_max (docs/SOLVER.md "Hard limits")."""
+    from jaxplan.planner.choice import LIMIT_TOL
+
+    base = with_value(BASE, ("planner", "limits"), "hard")
+    cases = [(("planner", key), v) for key in ("q_dynm", "q_obs", "q_lim", "k_t", "k_p")
+             for v in _run_values("planner", key)]
+    cases += [(("limits", key), v) for key in ("v_max", "a_max", "j_max")
+              for v in _run_values("limits", key)]
+    for path, v in cases:
+        m = _run(with_value(base, path, v)).metrics
+        for k in ("peak_speed_ratio", "peak_acc_ratio", "peak_jerk_ratio"):
+            assert m[k] <= 1.0 + LIMIT_TOL, (path, v, k, m[k])
+
+
 @pytest.mark.parametrize("method", ["orca", "orca3d"])
 def test_orca_keys_run_at_their_bounds(method):
     """Every accepted bound value of the ORCA baseline's keys runs a planar swap (RVO2:

@@ -40,7 +40,7 @@ from hypothesis.extra import numpy as hnp
 
 import jaxplan  # noqa: F401  (float64)
 from jaxplan import config as C
-from jaxplan import metrics, planner, solve
+from jaxplan import metrics, nlp, planner, solve
 from jaxplan.nlp import Limits, Multipliers, NLPParams, NLPStructure, Weights
 from jaxplan.predict import predict, predict_arrays
 from jaxplan.trajectory import Trajectory
@@ -457,7 +457,7 @@ def _solver_lanes(seed):
     x0[pick == 4, :-1] = rng.normal(size=((pick == 4).sum(), S_NLP.n_x - 1)) * 3
     x0[pick == 5, -1] = rng.choice([800.0, -800.0, 50.0], (pick == 5).sum())
     x0[pick == 6, 0] = rng.choice([np.inf, 1e300], (pick == 6).sum())
-    Kc, Kh = S_NLP.n_collision_samples, S_NLP.n_limit_samples
+    Kc, Kh = S_NLP.n_collision_samples, len(nlp.basis(S_NLP).lim_s)
     mult = Multipliers(rng.uniform(0, 10, (SB, Kc, MO)), rng.uniform(0, 1, (SB, Kh, 3)))
     mult.collision[rng.uniform(size=SB) < 0.1] = np.nan
     mult.limits[rng.uniform(size=SB) < 0.1] = -5.0

@@ -53,8 +53,10 @@ Objective terms (all integrals over [0, T], T = exp(tau)):
      "barrier+constraint"  both.
   Integrals over collision terms use composite 4-point Gauss-Legendre panels; the
   same nodes are the constraint samples (t = 0 and t = T excluded: both are fixed).
-Optional hard limits (``hard_limits``): 1 - |x^(k)(t_i)|^2 / tau_k^2 >= 0 at uniform
-sample times in (0, T].  Bound: T >= t_min.
+Optional hard limits (``hard_limits``): 1 - |b|^2 / tau_k^2 >= 0 for every Bernstein
+control point b of x^(k), k = 1..3, on each of ``limit_subdivisions`` equal pieces of
+every segment (a fixed linear map of the derivative at nodes in the piece): the curve
+lies in the hull of its control points, so the limits hold at every instant.  Bound: T >= t_min.
 
 Derivatives
 -----------

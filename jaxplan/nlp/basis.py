@@ -10,7 +10,7 @@ plan; :func:`equality_residual` checks the equality constraints from the coeffic
 from __future__ import annotations
 
 import functools
-from math import factorial
+from math import comb, factorial
 from typing import NamedTuple
 
 import jax
@@ -72,6 +72,38 @@ class Basis(NamedTuple):
     fit_s: np.ndarray
 
 
+def _control_points(D: int, S: int, Q: int) -> tuple[np.ndarray, np.ndarray]:
+    """The hard limits' rows: each segment cut into Q equal pieces; on each, derivative
+    r (a polynomial of degree n = D - r in the piece's own time u) has n + 1 Bernstein
+    control points b = B^-1 f, from its values f at n + 1 nodes u_l = (l + 1/2) / (n + 1)
+    (B[l, j] = C(n, j) u_l^j (1 - u_l)^(n - j)).  Every piece gets D rows (the velocity's
+    count; the acceleration's and jerk's last control point repeated), so one row set
+    serves r = 1..3.
+
+    Returns (lim_s (S Q D,) global normalized node times, mix (4, S Q D, S Q D): row i of
+    mix[r] combines the rows of derivative r at lim_s into control point i; row 0 (the
+    position, unused) is the identity)."""
+    u = (np.arange(D) + 0.5) / D  # D nodes per piece
+    pieces = S * Q
+    lim_s = ((np.arange(pieces)[:, None] + u[None]) / pieces).ravel()
+    K = pieces * D
+    mix = np.zeros((4, K, K))
+    mix[0] = np.eye(K)
+    for r in (1, 2, 3):
+        n = D - r
+        ur = (np.arange(n + 1) + 0.5) / (n + 1)
+        B = np.array([[comb(n, j) * x**j * (1 - x) ** (n - j) for j in range(n + 1)]
+                      for x in ur])
+        # the values at ur from the values at u (exact: degree n < D interpolates)
+        V = np.vander(u, D, increasing=True)
+        Vr = np.vander(ur, D, increasing=True)
+        to_cp = np.linalg.solve(B, Vr @ np.linalg.inv(V))  # (n + 1, D)
+        to_cp = np.vstack([to_cp, np.repeat(to_cp[-1:], D - n - 1, axis=0)])
+        for p in range(pieces):
+            mix[r, p * D:(p + 1) * D, p * D:(p + 1) * D] = to_cp
+    return lim_s, mix
+
+
 def _gauss01(n: int):
     x, w = np.polynomial.legendre.leggauss(n)
     return (x + 1) / 2, w / 2
@@ -91,7 +123,7 @@ def basis(structure: NLPStructure) -> Basis:
     xq, wq = _gauss01(structure.n_quadrature)
     quad_s = ((np.arange(S)[:, None] + xq[None]) / S).ravel()
     quad_w = np.tile(wq, S) / S
-    lim_s = np.arange(1, structure.n_limit_samples + 1) / structure.n_limit_samples
+    lim_s, lim_mix = _control_points(D, S, structure.limit_subdivisions)
     fit_s = np.linspace(0.0, 1.0, 4 * (D + 1) * S + 1)
 
     def rows(r, sigma):
@@ -146,10 +178,16 @@ def basis(structure: NLPStructure) -> Basis:
         def sample_mats(sigma):
             return np.stack([np.hstack([rows(r, sigma) @ P, rows(r, sigma) @ Z]) for r in range(4)])
 
+        def control_mats():
+            # each row a Bernstein control point of derivative r on one piece: a fixed
+            # combination (lim_mix[r]) of the derivative at that piece's nodes lim_s
+            vals = sample_mats(lim_s)
+            return np.stack([lim_mix[r] @ vals[r] for r in range(4)])
+
         Bf = rows(0, fit_s) @ P
         Cf = rows(0, fit_s) @ Z
         return KindConstants(P, Z, M, q, sample_mats(col_s), sample_mats(quad_s),
-                             sample_mats(lim_s), sample_mats(np.ones(1)),
+                             control_mats(), sample_mats(np.ones(1)),
                              np.linalg.pinv(Cf, rcond=1e-10), Bf)
 
     return Basis(kind(False), kind(True), col_s, col_w, quad_s, quad_w, lim_s, fit_s)

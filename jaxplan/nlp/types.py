@@ -20,6 +20,9 @@ from jaxplan.world import ALL_KINDS, StaticRows
 # config may choose
 COLLISION_MODES = ("paper", "barrier", "constraint", "barrier+constraint", "none")
 PLANNER_COLLISION_MODES = tuple(m for m in COLLISION_MODES if m != "none")
+# hard limits: equal pieces per segment on which the derivatives' Bernstein control
+# points are bounded (the NLP's constraints and the bound a plan must meet to fly)
+LIMIT_SUBDIVISIONS = 4
 SEXP_KNEE = 30.0
 DIST_EPS2 = 1e-12  # m^2, smooths |dx| at 0
 
@@ -55,8 +58,13 @@ class NLPStructure:
         n_collision_samples: collision samples (a multiple of 4: composite 4-point
             Gauss-Legendre panels over [0, T]).
         n_quadrature: Gauss-Legendre nodes per segment for the soft-limit integral.
-        hard_limits: add the constraints |x^(k)(t_i)| <= tau_k.
-        n_limit_samples: uniform sample times in (0, T] for the hard limits.
+        hard_limits: add the constraints |b| <= tau_k on every Bernstein control point b
+            of each derivative x^(k), k = 1..3, on each of ``limit_subdivisions`` equal
+            pieces of every segment: a polynomial curve lies in the convex hull of its
+            control points, so the limits then hold at every instant of [0, T].
+        limit_subdivisions: the pieces per segment of the hard limits (the more, the
+            closer the control points to the curve); the peak bound a plan must meet to
+            fly under hard limits (:func:`jaxplan.planner.choice.limit_ratio`) is the same.
         n_coast_samples: collision constraints on a FREE-end plan's coast after T (what
             it flies if nothing replaced it: p(T) + v(T) t), at t = t_c k / n for
             k = 1..n, with t_c = :func:`jaxplan.nlp.terms.coast_time` (long enough to stop from
@@ -83,7 +91,7 @@ class NLPStructure:
     n_collision_samples: int = 32
     n_quadrature: int = 8
     hard_limits: bool = False
-    n_limit_samples: int = 16
+    limit_subdivisions: int = LIMIT_SUBDIVISIONS
     n_coast_samples: int = 0
     n_static: int = 0
     static_kinds: tuple = ALL_KINDS

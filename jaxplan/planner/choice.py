@@ -32,6 +32,7 @@ import jax.numpy as jnp
 from jaxplan import solve
 from jaxplan.nlp import Multipliers, NLPParams
 from jaxplan.nlp.terms import STATIC_PRIORITY
+from jaxplan.nlp.types import LIMIT_SUBDIVISIONS
 from jaxplan.planner.types import Fallback, FleetParams, FleetState, PlannerStructure, PlanState
 from jaxplan.predict import quintic_terms
 from jaxplan.pytree import tree_where
@@ -40,7 +41,6 @@ from jaxplan.world import StaticRows, signed_distance
 
 CHECK_HORIZON_S = 1.5  # s: fallback plans are compared over this long (plan_violation)
 CHECK_SAMPLES = 32  # instants in (0, CHECK_HORIZON_S] (47 ms apart: 9 cm at 2 m/s)
-LIMIT_SUBDIVISIONS = 4  # hard limits: pieces per segment of a plan's peak bound
 LIMIT_TOL = 1e-3  # hard limits: a plan is within them up to this relative excess
 BRAKE_GROWTH = 1.25  # hard limits: the braking durations tried, T_b * BRAKE_GROWTH^k
 BRAKE_CANDIDATES = 16
