@@ -123,11 +123,12 @@ def test_a_planar_crowd_flies_within_its_limits(tmp_path):
 
 @pytest.mark.parametrize("degree,segments,rest", [(5, 2, False), (7, 3, True), (9, 1, False)])
 def test_the_nlps_limit_rows_are_the_bound_a_plan_must_meet(degree, segments, rest):
-    """The NLP's hard-limit constraints (1 - |b|^2 / tau^2 over the Bernstein control
-    points b of the derivatives, jaxplan.nlp.basis) give the very bound limit_ratio
+    """The NLP's hard-limit constraints (P (1 - |b|^2 / tau^2) over the Bernstein control
+    points b of the derivatives, jaxplan.nlp.basis; P = LIMIT_PRIORITY) give the very bound limit_ratio
     checks before a plan flies: a converged solve within its constraints is within the
     limits at every instant."""
     from jaxplan import nlp
+    from jaxplan.nlp.terms import LIMIT_PRIORITY
     from jaxplan.testing import random_problem, weights
 
     rng = np.random.default_rng(degree)
@@ -136,7 +137,7 @@ def test_the_nlps_limit_rows_are_the_bound_a_plan_must_meet(degree, segments, re
         p = random_problem(rng, n_others=2, rest=rest, w=weights())
         z = rng.normal(size=(st.n_dim, st.nz)) * 0.3
         x = nlp.pack(jnp.asarray(z), jnp.log(T))
-        g = np.asarray(nlp.constraints(x, p, st).limits)
+        g = np.asarray(nlp.constraints(x, p, st).limits) / LIMIT_PRIORITY
         traj = jax.tree.map(lambda a: a[None], nlp.to_trajectory(x, p, st))
         lim = jax.tree.map(lambda a: jnp.asarray(a)[None], p.limits)
         bound = float(limit_ratio(traj, lim)[0])

@@ -176,6 +176,15 @@ def static_gap(p, params):
 # into a sphere.
 STATIC_PRIORITY = 2.0
 
+# Hard limits: the scale of their constraints (1 - |b|^2 / tau^2, dimensionless) against
+# the collision constraints (m^2).  Where a solve cannot meet both (a robot already
+# inside another's planning distance), the augmented Lagrangian then gives up on the
+# distance, not on the limits, and the least violating plan it returns is within the
+# limits and may fly as the best effort (jaxplan.planner.choice); at equal scale such
+# solves broke the limits and were refused, robots flew their previous plans or braked
+# into each other (docs/SOLVER.md "Hard limits").
+LIMIT_PRIORITY = 100.0
+
 
 def static_scale(params):
     """The static constraint's scale (m): g = static_scale (sd - r - a), 4 r times
@@ -240,7 +249,8 @@ def _hard_g(y, params, structure):
     N = structure.n_dim
     lim = params.limits
     v, a, j = y[:N], y[N : 2 * N], y[2 * N : 3 * N]
-    return jnp.stack([1 - v @ v / lim.v_max**2, 1 - a @ a / lim.a_max**2, 1 - j @ j / lim.j_max**2])
+    return LIMIT_PRIORITY * jnp.stack([1 - v @ v / lim.v_max**2, 1 - a @ a / lim.a_max**2,
+                                       1 - j @ j / lim.j_max**2])
 
 
 def _hard_local(y, lam, params, structure, mu):
@@ -353,8 +363,9 @@ def constraints(x, params: NLPParams, structure: NLPStructure):
     (Kc, R)).
 
     Collision: d^2 - rho^2 (m^2) at the collision samples (masked pairs: +1; ones of
-    shape (Kc, Mo) when the mode has no collision constraints).  Limits: 1 - |x^(k)|^2 /
-    tau_k^2 at the hard-limit samples (+1 when ``hard_limits`` is off).  Static:
+    shape (Kc, Mo) when the mode has no collision constraints).  Limits: P (1 - |b|^2 /
+    tau_k^2) at the hard-limit rows, the derivatives' Bernstein control points b (P =
+    LIMIT_PRIORITY; +1 when ``hard_limits`` is off).  Static:
     s (sd - r - a) (m^2, :func:`static_constraints`) of the obstacles and workspace
     faces at the same rows (+1 where masked or off, and without collision constraints).
     """
