@@ -124,9 +124,9 @@ def test_a_planar_crowd_flies_within_its_limits(tmp_path):
 @pytest.mark.parametrize("degree,segments,rest", [(5, 2, False), (7, 3, True), (9, 1, False)])
 def test_the_nlps_limit_rows_are_the_bound_a_plan_must_meet(degree, segments, rest):
     """The NLP's hard-limit constraints (P (1 - |b|^2 / tau^2) over the Bernstein control
-    points b of the derivatives, jaxplan.nlp.basis; P = LIMIT_PRIORITY) give the very bound limit_ratio
-    checks before a plan flies: a converged solve within its constraints is within the
-    limits at every instant."""
+    points b of the derivatives, jaxplan.nlp.basis; P = LIMIT_PRIORITY) give the very
+    bound limit_ratio checks before a plan flies: a converged solve within its
+    constraints is within the limits at every instant."""
     from jaxplan import nlp
     from jaxplan.nlp.terms import LIMIT_PRIORITY
     from jaxplan.testing import random_problem, weights

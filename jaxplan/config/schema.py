@@ -218,7 +218,8 @@ class PlannerConfig:
     prediction "min_time_jerk" | "constant_velocity" | "static": what each robot predicts
     the others will do (jaxplan/planner/views.py): the paper's closed form, or ablations.
     limits "soft" | "hard": the paper's soft limits (the q_lim penalty alone), or hard
-    ones: the NLP constrains |v|, |a|, |j| at its limit samples, and a robot flies only a
+    ones: the NLP bounds the Bernstein control points of v, a and j (so the curves at
+    every instant; jaxplan/nlp/basis.py), and a robot flies only a
     plan whose speed, acceleration and jerk stay within its vehicle's limits at every
     instant (a Bernstein bound), else its braking plan kept within them
     (jaxplan/planner/choice.py).
