@@ -571,7 +571,11 @@ def test_backtracking_goes_just_past_the_first_al_branch_crossing():
     assert nxt(1.0, [1.0], [jnp.nan], [0.0]) == 0.5  # a non-finite trial: halve
 
 
-def _load_lane(path):
+def _load_lane(path, st: NLPStructure):
+    """A saved lane (params, start, multipliers, penalty) for structure ``st``.  The
+    saved lanes' structures have no hard limits: their limit multipliers (the shape of
+    the limit rows when they were saved) are unused, and are zeros of ``st``'s shape."""
+    assert not st.hard_limits
     z = np.load(path)
     g = lambda k: jnp.asarray(z[k])
     # (fields added after the file was made, e.g. the static rows, take their defaults)
@@ -582,7 +586,10 @@ def _load_lane(path):
     P = nlp.NLPParams(**own, others=sub(Trajectory, "P.others"),
                         weights=sub(nlp.Weights, "P.weights"),
                         limits=sub(nlp.Limits, "P.limits"), static=static)
-    return P, g("x0"), sub(nlp.Multipliers, "m"), g("mu")
+    m = sub(nlp.Multipliers, "m")
+    rows = (len(nlp.basis(st).lim_s), 3)
+    m = m._replace(limits=jnp.zeros(m.limits.shape[:-2] + rows, m.limits.dtype))
+    return P, g("x0"), m, g("mu")
 
 
 def test_warm_replan_with_a_large_penalty_converges():
@@ -593,7 +600,8 @@ def test_warm_replan_with_a_large_penalty_converges():
     max_iters (MAX_ITERS after 60).  With reg = 1e-13 it converges in a few iterations."""
     from pathlib import Path
 
-    P, x0, m, mu = _load_lane(Path(__file__).parent / "data" / "warm_lane_large_penalty.npz")
+    P, x0, m, mu = _load_lane(Path(__file__).parent / "data" / "warm_lane_large_penalty.npz",
+                              NLPStructure())
     assert float(mu) == 1e10 and int(P.other_mask.sum()) == 99
     sol = jax.device_get(jax.jit(lambda P, x0, m, mu: solve.solve(P, x0, NLPStructure(),
                                                                    multipliers=m, penalty=mu))(
@@ -611,8 +619,9 @@ def _warm_fleet10():
 
     from jaxplan.benchmarks.solver import nlp_setup
 
-    P, x0, m, mu = _load_lane(Path(__file__).parent / "data" / "warm_fleet10_product.npz")
-    return nlp_setup("product")[0], P, x0, m, mu
+    st = nlp_setup("product")[0]
+    P, x0, m, mu = _load_lane(Path(__file__).parent / "data" / "warm_fleet10_product.npz", st)
+    return st, P, x0, m, mu
 
 
 def _same(a, b):
