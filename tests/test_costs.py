@@ -61,17 +61,21 @@ def test_structured_derivatives_match_autodiff(st, rest):
     np.testing.assert_allclose(H, Hr, rtol=1e-8, atol=1e-9 * np.max(np.abs(Hr)))
 
 
-@pytest.mark.parametrize("q_lim,rest", [(0.5, True), (0.0, False),  # the others: test-slow
-                                         pytest.param(0.5, False, marks=pytest.mark.slow),
-                                         pytest.param(0.0, True, marks=pytest.mark.slow)])
-def test_limit_derivatives_match_autodiff_where_the_limits_bind(q_lim, rest):
+@pytest.mark.parametrize("q_lim,rest,prio", [
+    (0.5, True, None), (0.0, False, 3.0),  # the others: test-slow
+    pytest.param(0.5, False, None, marks=pytest.mark.slow),
+    pytest.param(0.0, True, None, marks=pytest.mark.slow)])
+def test_limit_derivatives_match_autodiff_where_the_limits_bind(q_lim, rest, prio):
     """A fast plan (T = 0.8 s for a few metres): the hard-limit AL terms are active on
     their quadratic branch and the soft limits far up their exponential, the branches
     the test above (slow plans) does not reach.  With q_lim = 0 the hard limits alone
-    (the soft ones would swamp them in the tolerance)."""
+    (the soft ones would swamp them in the tolerance).  prio: the NLP's own
+    limit_priority (None: LIMIT_PRIORITY)."""
     st = NLPStructure(collision="barrier+constraint", segments=2, hard_limits=True)
     rng = np.random.default_rng(3)
     p = random_problem(rng, n_others=4, rest=rest, w=weights(q_lim=q_lim))
+    if prio is not None:
+        p = p._replace(limit_priority=jnp.asarray(prio))
     kc = nlp.kind_constants(p.rest, st)
     b = nlp.basis(st)
     mult = Multipliers(jnp.asarray(rng.uniform(0, 5, (st.n_col, 10))),

@@ -20,11 +20,11 @@ import numpy as np
 
 from jaxplan.nlp.basis import basis, boundary_vector, falling, pack, unpack
 from jaxplan.nlp.terms import (
-    LIMIT_PRIORITY,
     al_term,
     coast_time,
     collision_rows,
     has_sampled_collision,
+    limit_priority,
     needs_col_features,
     paper_collision,
     sexp,
@@ -270,7 +270,7 @@ def _lim_terms(z, T, jets, w, lam, params, mu, soft: bool):
         HgT = 2.0 * a1[:, None] * Y
     else:
         bv, cd, cdd = _elementwise_derivs(
-            lambda rr: al_term(LIMIT_PRIORITY * (1.0 - rr / tm2), lam.T, mu), rho)
+            lambda rr: al_term(limit_priority(params) * (1.0 - rr / tm2), lam.T, mu), rho)
         val = sum_all(bv)
         GT = jnp.zeros(K, z.dtype)
         HgT = jnp.zeros_like(Y)
@@ -363,7 +363,7 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
             val = val + jnp.sum(jnp.where(use, al_term(r - rho * rho, mult.collision.T, mu),
                                           0.0), axis=(1, 2))
     if structure.hard_limits:
-        g = LIMIT_PRIORITY * (1.0 - radial("lim") / tm2)
+        g = limit_priority(params) * (1.0 - radial("lim") / tm2)
         val = val + jnp.sum(al_term(g, mult.limits.T, mu), axis=(1, 2))
     return val
 
@@ -520,7 +520,7 @@ def merit_derivs(x, params, structure, kind, mult: Multipliers, mu, with_g: bool
         if with_g:
             lim = params.limits
             tm2 = jnp.stack([lim.v_max, lim.a_max, lim.j_max]) ** 2
-            gh = LIMIT_PRIORITY * (1.0 - jnp.sum(Yh * Yh, axis=1) / tm2[:, None]).T
+            gh = limit_priority(params) * (1.0 - jnp.sum(Yh * Yh, axis=1) / tm2[:, None]).T
     g, H = _chain(z, T, parts)
     tg, tH = tg + g, tH + H
     if with_g:

@@ -174,6 +174,8 @@ class NLPParams(NamedTuple):
         radius: () m.   weights: Weights.   limits: Limits.   t_min: () s (> 0).
         static: :class:`jaxplan.world.StaticRows` with R = ``structure.n_static`` rows
             (obstacles and workspace faces), or None (no static rows).
+        limit_priority: () the hard-limit constraints' scale
+            (:data:`jaxplan.nlp.terms.LIMIT_PRIORITY`), or None: LIMIT_PRIORITY.
     """
 
     p0: jax.Array
@@ -191,6 +193,7 @@ class NLPParams(NamedTuple):
     limits: Limits
     t_min: jax.Array
     static: StaticRows | None = None
+    limit_priority: jax.Array | None = None
 
 
 class Multipliers(NamedTuple):

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxplan.nlp import Limits, Multipliers, NLPParams
+from jaxplan.nlp.terms import LIMIT_PRIORITY, LIMIT_PRIORITY_CALM
 from jaxplan.planner.types import FleetParams, FleetState, Goals, PlannerStructure, PlanState
 from jaxplan.planner.views import Predictions, sender_mask
 from jaxplan.trajectory import Trajectory
@@ -77,6 +78,7 @@ def fleet_nlps(fp: FleetParams, ps: PlanState, fleet: FleetState, preds: Predict
         rest=goals.rest, others=others, other_radius=other_radius, other_mask=other_mask,
         radius=fp.radius, weights=jax.tree.map(lambda w: jnp.broadcast_to(w, (M,)), fp.weights),
         limits=limits_i, t_min=jnp.broadcast_to(fp.t_min, (M,)), static=static,
+        limit_priority=jnp.where(ps.retry, LIMIT_PRIORITY, LIMIT_PRIORITY_CALM),
     )
     return FleetNLPs(params, idx, sidx, mult_prev)
 
