@@ -240,6 +240,7 @@ def summary(m: dict, out: Path, cache: str | None = None) -> str:
     compilation cache directory in use, if any)."""
     f = lambda x, fmt="{:.3f}": "n/a" if x is None else fmt.format(x)
     s = m["solver"]
+    coop = [r for r in m["per_robot"] if r.get("cooperative", True)]
     lines = [
         f"{m['name']}: {'SUCCESS' if m['success'] else 'FAILED'}  ({m['robots']} robots, "
         f"backend {m['backend']}, {m['replans']} replans over {m['duration_s']:.1f} s)",
@@ -248,7 +249,8 @@ def summary(m: dict, out: Path, cache: str | None = None) -> str:
         "; < 1 is a collision)",
         f"  makespan {f(m['makespan_s'], '{:.2f}')} s   peak speed {f(m['peak_speed'], '{:.2f}')}"
         f" m/s ({f(m['peak_speed_over_limit'], '{:.3f}')} x v_max)",
-        f"  reached {sum(r['reached'] for r in m['per_robot'])}/{m['robots']} robots"
+        f"  reached {sum(r['reached'] for r in coop)}/{len(coop)} robots"
+        + (f" (and {m['robots'] - len(coop)} non-cooperative)" if len(coop) < m["robots"] else "")
         + (f"; after reaching it, up to {m['max_goal_departure_m']:.2f} m from it"
            if m.get("max_goal_departure_m") is not None else "")
         + (f"; all settled by {m['settled_makespan_s']:.2f} s"

@@ -25,6 +25,16 @@ Goals and "reached" (the definition used everywhere)
   than :func:`auto_rest_distance` and with a rest end within it, so that the robot
   arrives slowing down and stops there instead of flying through; it is reached as a
   free end is (within ``goal_tolerance_m``; it is slow by then).
+
+Non-cooperative robots
+----------------------
+A robot with ``Scenario.cooperative`` False runs no planner: at every replan its plan
+is replaced by its own path (:class:`OwnPath`, :func:`own_plans`), rest-to-rest straight
+legs through its waypoints, each started at the first replan at or after the previous
+one ended; it publishes the end of its current leg as its goal.  The others see its
+state as they see any robot's and predict it as any robot.  It counts as having reached
+every fleet waypoint (it does not hold the fleet's waypoints back); the metrics leave it
+out of success and the makespan, and count its collisions.
 """
 
 from __future__ import annotations
@@ -86,6 +96,22 @@ class Task(NamedTuple):
     speed_tolerance: jax.Array
     faults: FaultParams
     guide: GuideField | None = None
+    own: OwnPath | None = None
+
+
+class OwnPath(NamedTuple):
+    """The non-cooperative robots' own paths (module docstring), traced.
+
+    mask: (M,) bool, True = the robot flies its own path.  start: (M, L) s, when each leg
+    starts (multiples of the replan period; leg 0 at 0).  legs: Trajectory with batch
+    (M, L), each leg in the plans' structure (S segments, degree D), from rest to rest.
+    goal: (M, L, N) m, each leg's end.
+    """
+
+    mask: jax.Array
+    start: jax.Array
+    legs: Trajectory
+    goal: jax.Array
 
 
 class RolloutState(NamedTuple):
@@ -157,6 +183,42 @@ def current_goals(task: Task, wp, reached, p, limits) -> Goals:
     return Goals(goal_p, goal_v, rest, guide_now(task, wp))
 
 
+def own_leg(own: OwnPath, t, dt):
+    """(M,) int32: each robot's leg at time t (the last started by t; dt / 2 of slack
+    for a t accumulated in floating point)."""
+    started = own.start <= t + 0.5 * dt
+    return jnp.maximum(jnp.sum(started, axis=1) - 1, 0).astype(jnp.int32)
+
+
+def own_goals(task: Task, t, dt, goals: Goals) -> Goals:
+    """``goals`` with each non-cooperative robot's replaced by its current leg's end (a
+    rest end)."""
+    own = task.own
+    if own is None:
+        return goals
+    M = own.mask.shape[0]
+    end = own.goal[jnp.arange(M), own_leg(own, t, dt)]
+    m = own.mask
+    return goals._replace(goal_p=jnp.where(m[:, None], end, goals.goal_p),
+                          goal_v=jnp.where(m[:, None], 0.0, goals.goal_v),
+                          rest=goals.rest | m)
+
+
+def own_plans(task: Task, t, dt, plans: PlanState) -> PlanState:
+    """``plans`` with each non-cooperative robot's plan replaced by its own path from
+    time t on: its current leg, shifted to t (past the leg's end: holding there)."""
+    own = task.own
+    if own is None:
+        return plans
+    M = own.mask.shape[0]
+    k = own_leg(own, t, dt)
+    idx = jnp.arange(M)
+    leg = jax.tree.map(lambda x: x[idx, k], own.legs)
+    path = leg.shift(t - own.start[idx, k])
+    plan = tree_where(own.mask, path, plans.plan)
+    return plans._replace(plan=plan, has_plan=plans.has_plan | own.mask)
+
+
 def executed_pieces(plan: Trajectory, t0, dt):
     """The first ``dt`` seconds of each plan as polynomial pieces.
 
@@ -184,13 +246,13 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     """One replan period: plan, execute the first period exactly, check goals."""
     M = st.p.shape[0]
     dt = fp.dt
-    goals = current_goals(task, st.wp, st.reached, st.p, fp.limits)
+    goals = own_goals(task, st.t, dt, current_goals(task, st.wp, st.reached, st.p, fp.limits))
     # what the robots broadcast: a robot that sidesteps its sub-goal (jaxplan.planner.stall)
-    pub = published_goals(st.plans.deadlock, goals.goal_p, goals.goal_v, goals.rest)
+    pub = publish(task, st.t, dt, st.plans, goals)
     comm, views, cstats = exchange(task, st, *pub, structure)
     plans, info = replan(fp, st.plans, FleetState(st.p, st.v, st.a, views), goals,
                          structure.planner)
-    plans = freeze(fp, task, st, plans, structure)
+    plans = own_plans(task, st.t, dt, freeze(fp, task, st, plans, structure))
     plan = plans.plan
     p1, v1, a1 = plan.state_at(jnp.broadcast_to(dt, (M,)))
     pt0, pt1, pc = executed_pieces(plan, st.t, dt)
@@ -203,6 +265,14 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     rec = StepRecord(st.t, st.p, st.v, st.a, pt0, pt1, pc, st.wp, info, cstats)
     new = RolloutState(st.t + dt, p1, v1, a1, plans, wp, reached, reach_time, comm)
     return new, rec
+
+
+def publish(task: Task, t, dt, ps: PlanState, goals: Goals):
+    """(goal_p, goal_v, rest) each robot broadcasts: its goal, a sidestep sub-goal
+    (:func:`jaxplan.planner.stall.published_goals`), a non-cooperative robot's leg end."""
+    pub = published_goals(ps.deadlock, goals.goal_p, goals.goal_v, goals.rest)
+    own = own_goals(task, t, dt, Goals(*pub))
+    return own.goal_p, own.goal_v, own.rest
 
 
 def exchange(task: Task, st: RolloutState, goal_p, goal_v, rest, structure: RolloutStructure):
@@ -258,9 +328,12 @@ def goal_update(fp: FleetParams, task: Task, st: RolloutState, goal_p, pos, spee
     new_hit = col & hit[:, None] & ~st.reached
     reached = st.reached | new_hit
     reach_time = jnp.where(new_hit, first[:, None], st.reach_time)
-    # padding robots, and robots that stopped responding, count as having reached
-    # everything (for publishing the next waypoint; metrics exclude them from success)
+    # padding robots, robots that stopped responding and non-cooperative robots count as
+    # having reached everything (for publishing the next waypoint; metrics exclude them
+    # from success)
     frozen = task.faults.frozen & (st.t >= task.faults.frozen_at)
+    if task.own is not None:
+        frozen = frozen | task.own.mask
     reached = reached | ~fp.robot_mask[:, None] | frozen[:, None]
     all_here = jnp.all(reached[:, st.wp])
     wp = jnp.where(all_here & (st.wp < W - 1), st.wp + 1, st.wp).astype(jnp.int32)

@@ -31,8 +31,9 @@ from jaxplan.planner.stall import (
     stall_window,
 )
 from jaxplan.planner.stall import default_params as deadlock_params
-from jaxplan.rollout import RolloutStructure, Task
+from jaxplan.rollout import OwnPath, RolloutStructure, Task
 from jaxplan.scenarios import Scenario
+from jaxplan.trajectory import Trajectory
 from jaxplan.world import ALL_KINDS, PLANE, StaticRows, World, row_kinds, static_rows
 
 # lower bound on every plan's horizon: two replan periods, so that a plan ends after the
@@ -135,8 +136,10 @@ def _static(scenario: Scenario, n_static: int | None):
     return StaticRows(*(jnp.asarray(a) for a in rows))
 
 
-def task_of(config: Config, scenario: Scenario) -> Task:
-    """Traced task arrays of a scenario."""
+def task_of(config: Config, scenario: Scenario, own: bool | None = None) -> Task:
+    """Traced task arrays of a scenario.  ``own``: carry the non-cooperative robots'
+    paths (:class:`jaxplan.rollout.OwnPath`); default: where the scenario has such a
+    robot (a sweep whose grid has one passes True for every run: one task tree)."""
     full = scenario.rest | scenario.has_goal_velocity
     gv = np.where(scenario.has_goal_velocity[..., None], scenario.goal_velocity, 0.0)
     return Task(
@@ -147,7 +150,69 @@ def task_of(config: Config, scenario: Scenario) -> Task:
         speed_tolerance=jnp.asarray(config.sim.goal_speed_tolerance_mps),
         faults=fault_params(config, scenario.start.shape[0]),
         guide=_guide(config, scenario),
+        own=own_path(config, scenario)
+        if (not np.all(scenario.cooperative) if own is None else own) else None,
     )
+
+
+# min-jerk rest-to-rest leg x(s) = a + (b - a) (10 s^3 - 15 s^4 + 6 s^5), s = t / T: its
+# peaks of |x'|, |x''|, |x'''| are these times |b - a| / T, / T^2, / T^3
+_LEG_POLY = np.array([0.0, 0.0, 0.0, 10.0, -15.0, 6.0])
+_LEG_PEAKS = (1.875, 10.0 / math.sqrt(3.0), 60.0)
+_LEG_SLACK = 1.0 + 1e-9  # the duration a hair longer: the peaks a hair below the limits
+
+
+def leg_duration(distance: float, v_max: float, a_max: float, j_max: float) -> float:
+    """s: the shortest min-jerk rest-to-rest leg over ``distance`` m within the limits."""
+    if distance <= 0.0:
+        return 0.0
+    cv, ca, cj = _LEG_PEAKS
+    return _LEG_SLACK * max(cv * distance / v_max, math.sqrt(ca * distance / a_max),
+                            (cj * distance / j_max) ** (1.0 / 3.0))
+
+
+def own_legs(scenario: Scenario, i: int, dt: float, segments: int, degree: int):
+    """Robot i's own path (the module docstring of :mod:`jaxplan.rollout`): from its start
+    through its waypoints, min-jerk rest-to-rest straight legs each as short as its
+    limits allow (:func:`leg_duration`), each started at the first multiple of ``dt`` at
+    or after the previous one ended.  Returns (start (W,) s, coeffs (W, S, N, D+1) in each
+    segment's normalized time, duration (W,) s, end (W, N) m)."""
+    if degree < 5:
+        raise ValueError(f"a non-cooperative robot flies min-jerk legs of degree 5; [planner] "
+                         f"degree is {degree}")
+    P = np.polynomial.Polynomial
+    pts = np.concatenate([scenario.start[i][None], scenario.waypoints[i]])
+    W, N = scenario.num_waypoints, scenario.dim
+    start, dur = np.zeros(W), np.zeros(W)
+    coeffs = np.zeros((W, segments, N, degree + 1))
+    t = 0.0
+    for k in range(W):
+        a, b = pts[k], pts[k + 1]
+        T = leg_duration(float(np.linalg.norm(b - a)), float(scenario.v_max[i]),
+                         float(scenario.a_max[i]), float(scenario.j_max[i]))
+        start[k], dur[k] = t, T
+        for s in range(segments):
+            # the leg on [s / S, (s + 1) / S] of its normalized time, in the segment's own
+            c = P(_LEG_POLY)(P([s / segments, 1.0 / segments])).coef if T > 0 else [0.0]
+            c = np.pad(np.asarray(c, float), (0, 6 - len(c)))
+            coeffs[k, s, :, :6] = (b - a)[:, None] * c[None, :]
+            coeffs[k, s, :, 0] += a
+        # (a leg that ends within 1e-6 periods after a replan, its slack, ends at it)
+        t = math.ceil((t + T) / dt - 1e-6) * dt
+    return start, coeffs, dur, pts[1:]
+
+
+def own_path(config: Config, scenario: Scenario) -> OwnPath:
+    """The traced :class:`jaxplan.rollout.OwnPath` of a scenario (the cooperative robots'
+    entries are computed too, and unused: mask False)."""
+    pc = config.planner
+    dt = 1.0 / pc.replan_hz
+    M, W = scenario.num_robots, scenario.num_waypoints
+    parts = [own_legs(scenario, i, dt, pc.segments, pc.degree) for i in range(M)]
+    start, coeffs, dur, end = (np.array([p[k] for p in parts]) for k in range(4))
+    legs = Trajectory.from_normalized(jnp.asarray(coeffs), jnp.asarray(dur))
+    return OwnPath(mask=jnp.asarray(~np.asarray(scenario.cooperative)),
+                   start=jnp.asarray(start.reshape(M, W)), legs=legs, goal=jnp.asarray(end))
 
 
 def _guide(config: Config, scenario: Scenario):

@@ -93,6 +93,7 @@ ERRORS = [
     (two(seed=-1), "seed", "must be >= 0"),
     (two(faults={"enabled": True, "message_loss": 1.5}), "faults.message_loss", "< 1"),
     ({"robots": [robot(vehicle="crazyflie")]}, "robots[0].vehicle", "unknown value 'crazyflie'"),
+    ({"robots": [robot(cooperative="no")]}, "robots[0].cooperative", "expected true or false"),
     ({"robots": [robot(vehicle=None)]}, "robots[0].vehicle", "missing"),
     ({"robots": [robot(start=None)]}, "robots[0].start", "missing"),
     ({"robots": [robot(goal=None)]}, "robots[0].goal", "exactly one of 'goal'"),

@@ -39,6 +39,8 @@ def _robot_to_dict(r: RobotConfig) -> dict[str, Any]:
             row["goal_velocity"] = list(r.goal_velocity[-1])
         else:
             row["goal_velocity"] = [[] if v is None else list(v) for v in r.goal_velocity]
+    if not r.cooperative:
+        row["cooperative"] = False
     return row
 
 
@@ -124,7 +126,7 @@ def assemble_scenario(config: Config, validate: bool) -> Scenario:
             parts.append(PAPER_SCENARIOS[config.scenario.kind](seed=config.seed))
         else:  # validated below, as a whole fleet together with [[robots]]
             parts.append(config.scenario.params.build(seed=config.seed, validate=False))
-    starts, wps, rests, autos, gvs, names = [], [], [], [], [], []
+    starts, wps, rests, autos, gvs, names, coop = [], [], [], [], [], [], []
     for p in parts:
         for i in range(p.num_robots):
             names.append(p.vehicles[i])
@@ -132,6 +134,7 @@ def assemble_scenario(config: Config, validate: bool) -> Scenario:
             wps.append(p.waypoints[i])
             rests.append(p.rest[i])
             autos.append(p.auto[i])
+            coop.append(bool(p.cooperative[i]))
             gvs.append([p.goal_velocity[i, w] if p.has_goal_velocity[i, w] else None
                         for w in range(p.num_waypoints)])
     for r in config.robots:
@@ -140,6 +143,7 @@ def assemble_scenario(config: Config, validate: bool) -> Scenario:
         wps.append(np.array(r.waypoints))
         rests.append([e == "rest" for e in r.end_state])
         autos.append([e == "auto" for e in r.end_state])
+        coop.append(r.cooperative)
         gvs.append(list(r.goal_velocity))
     lim = config.limits
     N = len(starts[0])
@@ -147,7 +151,7 @@ def assemble_scenario(config: Config, validate: bool) -> Scenario:
                                    auto=autos, v_max=lim.v_max, a_max=lim.a_max, j_max=lim.j_max,
                                    world=config_world(config, parts[0].world if parts else None,
                                                       N),
-                                   validate=validate)
+                                   validate=validate, cooperative=coop)
 
 
 def config_world(config: Config, generated: World | None, N: int) -> World:

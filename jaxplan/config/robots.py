@@ -38,17 +38,20 @@ class RobotConfig:
 
     vehicle: name; start: (N,) m; waypoints: W goals of (N,) m; end_state: W of
     "free" | "rest" | "auto"; goal_velocity: W entries, each (N,) m/s or None (none given, or a
-    rest end's zero one).
+    rest end's zero one); cooperative: False = the robot runs no planner and flies its own
+    waypoints (:class:`jaxplan.scenarios.Scenario` ``cooperative``).
     """
 
     KEYS: ClassVar[tuple[str, ...]] = ("vehicle", "start", "goal", "waypoints",
-                                       "goal_velocity", "end_state")  # the table's
+                                       "goal_velocity", "end_state",
+                                       "cooperative")  # the table's
 
     vehicle: VehicleName
     start: Position
     waypoints: tuple[Position, ...]
     end_state: tuple[EndState, ...]
     goal_velocity: tuple[Position | None, ...]
+    cooperative: bool = True
 
     @model_validator(mode="before")
     @classmethod
@@ -74,8 +77,11 @@ class RobotConfig:
             waypoints = sub_value(_Waypoints, t["waypoints"], "waypoints", info, dim=dim)
         default = (info.context or {}).get("end_state", "free")
         ends = _end_states(t.get("end_state", default), len(waypoints), info)
+        coop = t.get("cooperative", True)
+        if not isinstance(coop, bool):
+            raise FieldProblem(f"expected true or false, got {show(coop)}", key="cooperative")
         return {"vehicle": vehicle, "start": start, "waypoints": waypoints, "end_state": ends,
-                "goal_velocity": _goal_velocities(t, ends, dim, info)}
+                "goal_velocity": _goal_velocities(t, ends, dim, info), "cooperative": coop}
 
 
 ROBOT_KEYS = RobotConfig.KEYS

@@ -211,11 +211,13 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
     world = world_report(world_clearance(*pieces, scenario.radius, scenario.world,
                                          num_robots=M))
     frozen_robot = config.faults.frozen_robot if config.faults.enabled else -1
-    reached, ttg, all_reached, makespan = _goals(final, duration, M, frozen_robot)
+    # the robots whose arrival counts: not the frozen one, not a non-cooperative one
+    responsive = (np.arange(M) != frozen_robot) & np.asarray(scenario.cooperative)
+    reached, ttg, all_reached, makespan = _goals(final, duration, responsive)
     limits, limits_per_robot = limit_metrics(scenario, pieces, kin, final.reach_time, reached,
                                              config.sim.goal_tolerance_m)
     info = records.info
-    stalls = _stalls(config, scenario, records, reached, ttg, frozen_robot)
+    stalls = _stalls(config, scenario, records, reached, ttg, responsive)
     arrays = _run_arrays(scenario, records, pieces, min_dist, duration)
     departure = goal_departure(arrays["t"], arrays["pos"], scenario.waypoints[:, -1], ttg)
     # from when each robot stays at its last waypoint to the end: within goal_tolerance_m
@@ -227,7 +229,6 @@ def compute_metrics(config: Config, scenario: Scenario, records, final,
                        still,
                        time_to_goal(arrays["t"], arrays["pos"], goal, tol))
     settled = np.where(reached[:, -1], settled, np.nan)
-    responsive = np.arange(M) != frozen_robot
     dep = departure[responsive & np.isfinite(departure)]
     parked_at = np.array([np.nan if x["parked_at_s"] is None else x["parked_at_s"]
                           for x in stalls["per_robot"]])
@@ -343,24 +344,24 @@ def _success(metrics: dict) -> bool:
     workspace's boundary."""
     frozen = metrics["faults"]["frozen_robot"]
     arrived = all(r["reached"] or r.get("parked", False)
-                  for i, r in enumerate(metrics["per_robot"]) if i != frozen)
+                  for i, r in enumerate(metrics["per_robot"])
+                  if i != frozen and r.get("cooperative", True))
     return bool(arrived and metrics["collisions"] == 0
                 and metrics["obstacle_collisions"] == 0 and metrics["workspace_violations"] == 0)
 
 
-def _goals(final, duration: float, M: int, frozen_robot: int):
+def _goals(final, duration: float, responsive):
     """(reached (M, W) within the run, time to the last waypoint (M,) NaN if not reached,
-    every responsive robot reached every waypoint, makespan s or None)."""
+    every responsive robot ((M,) mask) reached every waypoint, makespan s or None)."""
     reach_time = np.asarray(final.reach_time)
     reached = np.asarray(final.reached) & (reach_time <= duration + 1e-9)
-    responsive = np.arange(M) != frozen_robot
     all_reached = bool(np.all(reached[responsive]))
     ttg = np.where(reached[:, -1], reach_time[:, -1], np.nan)
     makespan = float(np.nanmax(ttg[responsive])) if all_reached else None
     return reached, ttg, all_reached, makespan
 
 
-def _stalls(config: Config, scenario: Scenario, records, reached, ttg, frozen_robot: int):
+def _stalls(config: Config, scenario: Scenario, records, reached, ttg, responsive):
     """Stalls, parked robots and the makespan (metrics.json ``stalls``, ``stalled_s``,
     ``sidestep_s``, ``parked``, ``makespan_s``, ``makespan_over_bound`` and per robot
     ``stalls``, ``stalled_s``, ``sidestep_s``, ``parked``, ``parked_at_s``)."""
@@ -374,7 +375,6 @@ def _stalls(config: Config, scenario: Scenario, records, reached, ttg, frozen_ro
         config.sim.goal_tolerance_m, config.sim.goal_speed_tolerance_mps)
     done = reached[:, -1]
     parked = parked & ~done
-    responsive = np.arange(M) != frozen_robot
     arrived = bool(np.all((done | parked)[responsive]))
     times = np.where(done, ttg, parked_at)
     makespan = float(np.nanmax(times[responsive])) if arrived and np.any(responsive) else None
@@ -398,6 +398,7 @@ def _per_robot(scenario: Scenario, reached, ttg, kin, world: dict) -> list[dict]
     return [{
         "vehicle": scenario.vehicles[i],
         "reached": bool(np.all(reached[i])),
+        "cooperative": bool(scenario.cooperative[i]),
         "waypoints_reached": int(np.sum(reached[i])),
         "time_to_goal_s": _num(ttg[i]),
         "path_length_m": _num(kin.path_length_m[i]),
@@ -447,6 +448,7 @@ def _run_arrays(scenario: Scenario, records, pieces, min_dist, duration: float) 
         "waypoints": np.asarray(scenario.waypoints, np.float64),
         "start": np.asarray(scenario.start, np.float64),
         "vehicle": np.asarray(scenario.vehicles, dtype=f"U{_width(scenario.vehicles)}"),
+        "cooperative": np.asarray(scenario.cooperative, bool),
         "seg_robot": seg_robot, "seg_t0": seg_t0, "seg_t1": seg_t1, "seg_coeffs": seg_c,
         "min_dist": np.where(np.isfinite(min_dist), min_dist, np.nan),
         "replan_t": np.asarray(records.t),

@@ -31,6 +31,7 @@ from jaxplan.scenarios.paper import (
 )
 from jaxplan.scenarios.params import GeneratorParams
 from jaxplan.scenarios.scenario import Scenario, ScenarioError
+from jaxplan.scenarios.traffic import IntruderParams, intruder
 from jaxplan.scenarios.worlds import (
     LowCeilingParams,
     PillarsParams,
@@ -69,14 +70,14 @@ PAPER_SCENARIOS: dict[str, Callable[..., Scenario]] = {
 GENERATOR_PARAMS: dict[str, type[GeneratorParams]] = {
     p.kind: p for p in (AntipodalSphereParams, RandomBoxParams, GridSwapParams, StackedParams,
                         AntipodalCircleParams, PillarsParams, WallGapParams, LowCeilingParams,
-                        RandomObstaclesParams)
+                        RandomObstaclesParams, IntruderParams)
 }
 # each generator declared its model (jaxplan.scenarios.params.generates)
 GENERATORS: dict[str, Callable[..., Scenario]] = {
     kind: p.generator for kind, p in GENERATOR_PARAMS.items()}
 AnyGeneratorParams = (AntipodalSphereParams | RandomBoxParams | GridSwapParams | StackedParams
                       | AntipodalCircleParams | PillarsParams | WallGapParams | LowCeilingParams
-                      | RandomObstaclesParams)
+                      | RandomObstaclesParams | IntruderParams)
 
 _MIXED = ("firefly", "neo11")
 
@@ -124,6 +125,8 @@ SCENARIOS: dict[str, ScenarioSpec] = {
     "random_obstacles": ScenarioSpec(
         "random_obstacles", "random starts and goals among random obstacles "
         "(default 12 robots, 15 obstacles)", random_obstacles),
+    "intruder": ScenarioSpec(
+        "intruder", "a non-cooperative drone crosses a swarm of 10 mid-swap", intruder),
 }
 
 

@@ -55,6 +55,10 @@ class Scenario:
         v_max, a_max, j_max: (M,) planner limits, m/s, m/s^2, m/s^3.
         world: the :class:`jaxplan.world.World` (workspace and obstacles); default
             :meth:`jaxplan.world.World.default` (in 3-D the ground z >= 0).
+        cooperative: (M,) bool, False = a robot that runs no planner: it flies its own
+            waypoints in straight lines within its limits, stopping at each
+            (:func:`jaxplan.run_setup.own_legs`), and neither predicts nor avoids the
+            others (they see it as any robot).  Default: every robot cooperates.
 
     Equality is identity (arrays); compare fields with numpy.
     """
@@ -72,10 +76,22 @@ class Scenario:
     j_max: np.ndarray
     world: World | None = None
     auto: np.ndarray | None = None
+    cooperative: np.ndarray | None = None
 
     def __post_init__(self):
         if self.auto is None:
             object.__setattr__(self, "auto", _readonly(np.zeros(np.shape(self.rest), bool)))
+        M = int(self.start.shape[0])
+        if self.cooperative is None:
+            object.__setattr__(self, "cooperative", _readonly(np.ones(M, bool)))
+        else:
+            coop = np.asarray(self.cooperative, bool).reshape(-1)
+            if coop.shape != (M,):
+                raise ScenarioError(f"cooperative: expected {M} flags, got {coop.shape[0]}")
+            if not np.any(coop):
+                raise ScenarioError("cooperative: every robot is non-cooperative; at least one "
+                                    "must run the planner")
+            object.__setattr__(self, "cooperative", _readonly(coop))
         if self.world is None:
             object.__setattr__(self, "world", World.default(int(self.start.shape[1])))
         elif self.world.dim != self.start.shape[1]:
@@ -176,6 +192,7 @@ def make_scenario(
     j_max=None,
     world: World | None = None,
     validate: bool = True,
+    cooperative=None,
 ) -> Scenario:
     """Assemble (and by default validate) a :class:`Scenario`.
 
@@ -193,6 +210,7 @@ def make_scenario(
         v_max, a_max, j_max: scalar or (M,) limit overrides; default per vehicle.
         world: workspace and obstacles (default: :meth:`jaxplan.world.World.default`).
         validate: run :func:`validate_scenario` (raises ScenarioError).
+        cooperative: None (every robot) or (M,) bools (:class:`Scenario`).
     """
     vehicles = tuple(str(v) for v in vehicles)
     M = len(vehicles)
@@ -223,6 +241,7 @@ def make_scenario(
         **{k: _readonly(v) for k, v in limits.items()},
         world=world,
         auto=_readonly(auto_arr),
+        cooperative=None if cooperative is None else np.asarray(cooperative, bool),
     )
     if validate:
         validate_scenario(sc)

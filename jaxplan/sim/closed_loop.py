@@ -31,7 +31,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxplan.planner import FleetParams, FleetState, fresh_views, replan
-from jaxplan.planner.stall import published_goals
 from jaxplan.rollout import (
     RolloutState,
     RolloutStructure,
@@ -41,6 +40,9 @@ from jaxplan.rollout import (
     executed_pieces,
     goal_update,
     initial_state,
+    own_goals,
+    own_plans,
+    publish,
 )
 from jaxplan.sim import fleet as sf
 
@@ -72,11 +74,11 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     pick = lambda r, m: jnp.where(agree[:, None], r, m)
     p, v, a = pick(pr, pm), pick(vr, vm), pick(ar, am)
     st = st._replace(t=t, p=p, v=v, a=a)
-    goals = current_goals(task, st.wp, st.reached, p, fp.limits)
+    goals = own_goals(task, t, fp.dt, current_goals(task, st.wp, st.reached, p, fp.limits))
     # the others are seen as measured
-    views = fresh_views(pm, vm, am, *published_goals(st.plans.deadlock, goals.goal_p,
-                                                     goals.goal_v, goals.rest))
+    views = fresh_views(pm, vm, am, *publish(task, t, fp.dt, st.plans, goals))
     plans, info = replan(fp, st.plans, FleetState(p, v, a, views), goals, structure.planner)
+    plans = own_plans(task, t, fp.dt, plans)
     new_sim, prec = sf.simulate_period(sim, sim_state, plans.plan, 0.0, period_s)
     t1 = sf.sim_time(sim, new_sim)
     pt0, pt1, pc = executed_pieces(plans.plan, t, t1 - t)

@@ -129,6 +129,9 @@ def pad_robots(fp, task: Task, m_pad: int):
         guide=None if task.guide is None else task.guide._replace(value=np.concatenate(
             [np.asarray(task.guide.value),
              np.zeros((W, extra) + np.shape(task.guide.value)[2:])], axis=1)),
+        own=None if task.own is None else jax.tree.map(
+            lambda x: cat(x, np.asarray(x)[0]), task.own)._replace(
+                mask=cat(task.own.mask, False)),
     )
     lim = fp.limits
     fp = fp._replace(
@@ -140,13 +143,20 @@ def pad_robots(fp, task: Task, m_pad: int):
 
 
 def _prepare(config: Config, point: SweepPoint, scenario: Scenario, m_pad: int,
-             r_pad: int) -> _Prepared:
+             r_pad: int, own: bool = False) -> _Prepared:
     """A point's fleet parameters and task, as numpy, padded to m_pad robots and r_pad
-    static rows (masked rows add exact zeros: the results do not depend on r_pad)."""
+    static rows (masked rows add exact zeros: the results do not depend on r_pad);
+    ``own``: the task carries the non-cooperative robots' paths (every run of a grid
+    that has one: :func:`_has_own`)."""
     fp = fleet_params(config, scenario, _weights(config, point.q_obs, point.q_lim), r_pad)
     fp, task = pad_robots(jax.tree.map(np.asarray, fp),
-                          jax.tree.map(np.asarray, task_of(config, scenario)), m_pad)
+                          jax.tree.map(np.asarray, task_of(config, scenario, own)), m_pad)
     return _Prepared(point, scenario, fp, task)
+
+
+def _has_own(built: dict) -> bool:
+    """A scenario of the grid (``built``) has a non-cooperative robot."""
+    return any(not np.all(sc.cooperative) for sc in built.values())
 
 
 def structure_for(config: Config, n_dim: int, n_static: int | None = None,
@@ -398,7 +408,7 @@ class BatchRunner:
             raise ValueError(f"a batch holds 1 to {batch} points, got {len(points)}")
         configs = self._configs(points, weights, built)
         r_pad = self._r_pad(points, built, r_pad)
-        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad)
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built))
                  for c, p in zip(configs, points, strict=True)]
         full = preps + [preps[-1]] * (batch - len(preps))
         fpb = stack_trees([c.fp for c in full])
@@ -457,7 +467,8 @@ class BatchRunner:
         device = jax.devices("cpu")[0] if device is None else device
         config = self._configs([point], None if weights is None else [weights], built)[0]
         r_pad = self._r_pad([point], built, r_pad)
-        prep = _prepare(config, point, built[(point.scenario, point.seed)], m_pad, r_pad)
+        prep = _prepare(config, point, built[(point.scenario, point.seed)], m_pad, r_pad,
+                        _has_own(built))
         compiled = self._one_run_program(prep, built, r_pad, device)
         (reached, reach_time), records = compiled(*jax.device_put(
             self._one_run_inputs(prep), device))
@@ -512,7 +523,7 @@ class BatchRunner:
         through it (a call runs in its caller's thread, without the GIL: the runs go
         side by side on the cores; one executable, so the same operations for all)."""
         configs = self._configs(points, weights, built)
-        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad)
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built))
                  for c, p in zip(configs, points, strict=True)]
         device = jax.devices("cpu")[0]
         self._one_run_program(preps[0], built, r_pad, device)

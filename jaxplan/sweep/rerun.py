@@ -90,7 +90,8 @@ def _run_config(config: Config, run_config: Config, point: SweepPoint, row: int,
 
 
 def _same_scenario(a, b) -> bool:
-    fields = ("start", "waypoints", "radius", "v_max", "a_max", "j_max", "rest", "auto")
+    fields = ("start", "waypoints", "radius", "v_max", "a_max", "j_max", "rest", "auto",
+              "cooperative")
     return all(np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f)))
                for f in fields)
 
