@@ -131,7 +131,10 @@ DEADLOCK_CELLS = [
 OFF_COMPARED = ("antipodal_10", "random_box_20", "antipodal_10, robot 0 frozen",
                 "random_box_20, robot 0 frozen")
 RESOLUTIONS = ("off", "auto", "sidestep")
-WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles")
+# the worlds study's; the baselines study compares the first four (the others hold robots
+# that run no planner, which the baselines cannot leave alone)
+WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles", "intruder")
+BASELINE_WORLDS = WORLDS[:4]
 STUDIES = ("paper", "collision", "faults", "deadlock", "worlds", "baselines")
 # baselines: the methods compared ([planner] overrides) and the fleets: the deadlock
 # study's fleets without faults, then the worlds.  The paper's planner's cells are the
@@ -145,7 +148,7 @@ BASELINE_METHODS = {
     "static": {"prediction": "static"},
 }
 BASELINE_FLEETS = [c for c in DEADLOCK_CELLS if c[4] is None] + [
-    (w, ROOT / "worlds" / f"{w}.toml", {}, 20, None) for w in WORLDS]
+    (w, ROOT / "worlds" / f"{w}.toml", {}, 20, None) for w in BASELINE_WORLDS]
 
 # The page: one section per study, in this order.
 TITLES = {"paper": "The paper's four scenarios", "collision": "Collision modes",
@@ -185,7 +188,9 @@ DEFAULT_NOTES = {
               "workspace (exact from the executed pieces under ideal; every physics step "
               "under mjx). Clearance: distance from a robot's centre to the obstacle's "
               "surface (or a workspace face) minus its radius, min over robots, time and "
-              "runs. The worlds: jaxplan/scenarios/worlds.py.",
+              "runs. The worlds: jaxplan/scenarios/worlds.py; intruder (a drone that runs "
+              "no planner crosses a swarm mid-swap; success counts the swarm, collisions "
+              "every robot): jaxplan/scenarios/traffic.py.",
     "baselines": "Each method in the same harness on the same seeds: its executed motion "
                  "as pieces, the same exact metrics. krishnan: the paper's planner, default "
                  "settings (its cells are the deadlock study's \"auto\" and the worlds "

@@ -207,6 +207,10 @@ def run_method(config: Config, scenario, *, progress: bool = False) -> RunResult
     :mod:`jaxplan.baselines.orca3d`, compile_s its step's compile); no files are
     written.  Raises ValueError where the method refuses the scenario or the config."""
     method = config.planner.method
+    if not np.all(scenario.cooperative):
+        raise ValueError(f"[planner] method = {method!r} moves every robot itself: a fleet "
+                         "with non-cooperative robots ([[robots]] cooperative) needs the "
+                         "planner, method 'krishnan'")
     if method == "orca":
         from jaxplan.baselines.orca import run_orca
 

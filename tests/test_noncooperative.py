@@ -144,3 +144,14 @@ def test_success_counts_the_cooperative_robots_and_collisions_count_all(crossing
     per[0]["reached"] = False
     assert not _success({**m, "per_robot": per})
     assert not _success({**m, "collisions": 1})  # its collisions (any pair) count
+
+
+def test_the_baselines_refuse_a_fleet_with_a_non_cooperative_robot(tiny_config):
+    """ORCA moves every agent itself: it would make the intruder avoid the others."""
+    from jaxplan.experiment import run_method
+
+    cfg = _config(tiny_config)
+    for method in ("orca", "orca3d"):
+        c = dataclasses.replace(cfg, planner=dataclasses.replace(cfg.planner, method=method))
+        with pytest.raises(ValueError, match="non-cooperative"):
+            run_method(c, build_scenario(c))

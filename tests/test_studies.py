@@ -83,7 +83,7 @@ def test_the_baselines_study_shares_the_planners_cells(tmp_path, monkeypatch):
     assert "baselines/pillars__orca3d__5seeds" not in seen
     assert seen["baselines/antipodal_10__orca3d__5seeds"] == (5, {"method": "orca3d"})
     planar = sum("planar" in c[0] for c in fleets)
-    worlds = len(studies.WORLDS)
+    worlds = len(studies.BASELINE_WORLDS)
     assert seen["baselines/planar_box_10__orca__r___0_3_m__5seeds"] == (
         5, {"method": "orca", "safety_margin_m": 0.0})
     assert len(seen) == 6 * len(fleets) - 2 * (len(fleets) - planar) - worlds
