@@ -251,7 +251,7 @@ def step(fp: FleetParams, task: Task, st: RolloutState, structure: RolloutStruct
     pub = publish(task, st.t, dt, st.plans, goals)
     comm, views, cstats = exchange(task, st, *pub, structure)
     plans, info = replan(fp, st.plans, FleetState(st.p, st.v, st.a, views), goals,
-                         structure.planner)
+                         structure.planner, st.t)
     plans = own_plans(task, st.t, dt, freeze(fp, task, st, plans, structure))
     plan = plans.plan
     p1, v1, a1 = plan.state_at(jnp.broadcast_to(dt, (M,)))

@@ -34,7 +34,7 @@ from jaxplan.planner.stall import default_params as deadlock_params
 from jaxplan.rollout import OwnPath, RolloutStructure, Task
 from jaxplan.scenarios import Scenario
 from jaxplan.trajectory import Trajectory
-from jaxplan.world import ALL_KINDS, PLANE, StaticRows, World, row_kinds, static_rows
+from jaxplan.world import ALL_KINDS, PLANE, World, row_kinds, rows_as_jax, static_rows
 
 # lower bound on every plan's horizon: two replan periods, so that a plan ends after the
 # next replan.  A shorter one is flown to its end within the period, braking far beyond
@@ -94,9 +94,10 @@ def world_kinds(world: World) -> tuple[int, ...]:
 
 
 def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = None,
-                 n_static: int | None = None) -> FleetParams:
+                 n_static: int | None = None, knots: int | None = None) -> FleetParams:
     """Traced fleet parameters from a config and its scenario (the world's static rows
-    padded to ``n_static``, default exactly its own)."""
+    padded to ``n_static``, default exactly its own; their motion to ``knots`` knots,
+    default the world's own, none in a static world: :func:`jaxplan.world.static_rows`)."""
     pc = config.planner
     w = weights or Weights(*(jnp.asarray(float(x)) for x in
                              (pc.q_dynm, pc.q_obs, pc.q_lim, pc.k_t, pc.k_p)))
@@ -114,7 +115,7 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
         t_min=jnp.asarray(T_MIN_PERIODS / pc.replan_hz),
         prediction_weight=jnp.asarray(pc.k_t / pc.q_dynm),
         accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
-        static=_static(scenario, n_static),
+        static=_static(scenario, n_static, knots),
         deadlock=deadlock_params(
             enabled=resolution_enabled(pc.deadlock, scenario.dim), window=window,
             progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
@@ -129,11 +130,11 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
     )
 
 
-def _static(scenario: Scenario, n_static: int | None):
-    rows = static_rows(scenario.world, n_static)
+def _static(scenario: Scenario, n_static: int | None, knots: int | None = None):
+    rows = static_rows(scenario.world, n_static, knots)
     if rows.mask.shape[0] == 0:
         return None
-    return StaticRows(*(jnp.asarray(a) for a in rows))
+    return rows_as_jax(rows)
 
 
 def task_of(config: Config, scenario: Scenario, own: bool | None = None) -> Task:

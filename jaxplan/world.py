@@ -1,5 +1,5 @@
-"""The static world the robots move in: a workspace box and axis-aligned obstacles
-(the ``[workspace]`` and ``[[obstacles]]`` config sections, docs/DESIGN.md).
+"""The world the robots move in: a workspace box and axis-aligned obstacles, static or
+moving (the ``[workspace]`` and ``[[obstacles]]`` config sections, docs/DESIGN.md).
 
 A :class:`World` holds, on the host (numpy, read-only):
 
@@ -7,12 +7,28 @@ A :class:`World` holds, on the host (numpy, read-only):
                       (-inf / inf: unbounded); in 3-D the default is the ground,
                       lo = [-inf, -inf, 0], hi = [inf, inf, inf]
     kind     (K,)     SPHERE, BOX or CYLINDER (OBSTACLE_KINDS names them)
-    center   (K, N)   m
+    center   (K, N)   m, where the obstacle is at t = 0
     half     (K, N)   m, a box's half extents; a cylinder's half height in its last
                       entry (3-D; its axis is vertical); unused for a sphere
     radius   (K,)     m, a sphere's or a cylinder's radius; unused for a box
+    knot_t   (K, P)   s, the knot times of each obstacle's motion (non-decreasing)
+    knot_p   (K, P, N) m, its centre at those times
+    knot_v   (K, N)   m/s, its velocity after its last knot
+    known    (K,)     bool, the robots know its future path (``known_path``)
 
 In 2-D a cylinder is a disc (its radius only) and a sphere is the same disc.
+
+Motion.  Every obstacle's centre is a piecewise-linear function of time
+(:func:`path_at`, :meth:`World.center_at`): at rest at knot_p[0] before knot_t[0],
+linear between knots, and knot_p[-1] + knot_v (t - knot_t[-1]) after the last knot.  A
+static obstacle is one knot at t = 0 with knot_v = 0 (the default when no motion is
+given); a constant velocity v (``velocity``) is one knot at t = 0, at its centre, with
+knot_v = v; a timed path (``path``) is its points as knots with knot_v = 0 (at rest
+after its last point).  Obstacles with fewer knots than P are padded by repeating their
+last knot (same time, same point), which changes nothing.  Only spheres and cylinders
+move (a moving box is refused by the config).  The robots see a moving obstacle's
+current position and velocity at each replan and predict it flying on at that velocity,
+or know its whole future path (``known``): :func:`rows_at`.
 
 Distances (:func:`signed_distance`) are the exact Euclidean signed distances to the
 obstacle's surface (negative inside), written so that they are smooth enough for the
@@ -28,7 +44,13 @@ The planner's NLP sees the world as "static rows" (:class:`StaticRows`): the obs
 followed by the finite workspace faces (:func:`static_rows`), each with the same
 signed-distance function (:func:`signed_distance`; its derivatives
 in closed form: :func:`signed_distance_jet`), padded with masked rows to a fixed
-count so that a run with K obstacles compiles once.
+count so that a run with K obstacles compiles once.  In a world with a moving obstacle
+the rows carry their motion (:class:`RowMotion`, traced data: knot times, points and the
+final velocity per row, the faces and padding at rest), and a replan moves them to its
+time (:func:`rows_at`): each row's ``center`` is then where it is now and its motion
+the prediction from now on (times relative to the replan); the NLP evaluates the
+distance at sample time tau to the centre :func:`path_at` gives at tau.  A static world
+has ``motion = None``: its programs and results are those of a world without motion.
 """
 
 from __future__ import annotations
@@ -39,6 +61,15 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+# the motion's names, here too: the world's rows carry it (jaxplan/motion.py)
+from jaxplan.motion import (  # noqa: F401
+    RowMotion,
+    centres_at,
+    obstacle_motion,
+    path_at,
+    rows_at,
+)
 
 SPHERE, BOX, CYLINDER, PLANE = 0, 1, 2, 3
 ALL_KINDS = (SPHERE, BOX, CYLINDER, PLANE)
@@ -54,7 +85,8 @@ def _readonly(a) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class World:
-    """Workspace bounds and static obstacles (module doc for the fields)."""
+    """Workspace bounds and obstacles, static or moving (module doc for the fields;
+    knot_t, knot_p, knot_v, known default to every obstacle at rest at its centre)."""
 
     lo: np.ndarray
     hi: np.ndarray
@@ -62,6 +94,10 @@ class World:
     center: np.ndarray
     half: np.ndarray
     radius: np.ndarray
+    knot_t: np.ndarray | None = None
+    knot_p: np.ndarray | None = None
+    knot_v: np.ndarray | None = None
+    known: np.ndarray | None = None
 
     def __post_init__(self):
         N = np.asarray(self.lo).shape[0]
@@ -76,6 +112,38 @@ class World:
             raise ValueError(f"World: inconsistent shapes lo {self.lo.shape}, hi "
                              f"{self.hi.shape}, kind {kind.shape}, center {self.center.shape}, "
                              f"half {self.half.shape}, radius {self.radius.shape}")
+        # motion: default every obstacle at rest at its centre (one knot at t = 0)
+        if self.knot_t is None:
+            object.__setattr__(self, "knot_t", np.zeros((K, 1)))
+        if self.knot_p is None:
+            object.__setattr__(self, "knot_p", self.center[:, None, :])
+        if self.knot_v is None:
+            object.__setattr__(self, "knot_v", np.zeros((K, N)))
+        known = np.zeros(K, bool) if self.known is None else np.array(self.known, bool)
+        known = known.reshape(-1)
+        known.setflags(write=False)
+        object.__setattr__(self, "known", known)
+        for name in ("knot_t", "knot_p", "knot_v"):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+        kt, kp, kv = self.knot_t, self.knot_p, self.knot_v
+        P = kt.shape[1] if kt.ndim == 2 else -1
+        if kt.shape != (K, P) or P < 1 or kp.shape != (K, P, N) or kv.shape != (K, N) \
+                or known.shape != (K,):
+            raise ValueError(f"World: inconsistent motion shapes knot_t {kt.shape}, knot_p "
+                             f"{kp.shape}, knot_v {kv.shape}, known {known.shape} for "
+                             f"{K} obstacles in {N}-D")
+        if not (np.all(np.isfinite(kt)) and np.all(np.isfinite(kp))
+                and np.all(np.isfinite(kv))):
+            raise ValueError("World: the obstacles' motion must be finite")
+        if np.any(np.diff(kt, axis=1) < 0.0):
+            raise ValueError("World: knot_t must be non-decreasing")
+        same = np.diff(kt, axis=1) == 0.0
+        if np.any(same & np.any(np.diff(kp, axis=1) != 0.0, axis=-1)):
+            raise ValueError("World: knots at the same time must be at the same point")
+        if K and np.max(np.abs(self.center_at(0.0)[0] - self.center)) > 1e-9 * (
+                1.0 + np.max(np.abs(self.center))):
+            raise ValueError("World: center must be where the motion puts each obstacle "
+                             "at t = 0")
 
     @staticmethod
     def default(N: int) -> World:
@@ -101,19 +169,53 @@ class World:
         return int(self.kind.shape[0])
 
     @property
+    def num_knots(self) -> int:
+        """P, the knots of the motions (padded)."""
+        return int(self.knot_t.shape[1])
+
+    @property
+    def moving(self) -> np.ndarray:
+        """(K,) bool: the obstacle moves at some time."""
+        return (np.any(self.knot_p != self.knot_p[:, :1], axis=(1, 2))
+                | np.any(self.knot_v != 0.0, axis=1))
+
+    @property
+    def has_motion(self) -> bool:
+        """Whether some obstacle moves."""
+        return bool(np.any(self.moving))
+
+    def center_at(self, t):
+        """Every obstacle's centre and velocity at time(s) t (s; (...,)): (centre
+        (..., K, N) m, velocity (..., K, N) m/s) (:func:`path_at`)."""
+        return path_at(self.knot_t, self.knot_p, self.knot_v, np.asarray(t, np.float64))
+
+    def static_part(self) -> World:
+        """The world without its moving obstacles (what the guide plans round)."""
+        keep = ~self.moving
+        return World(self.lo, self.hi, self.kind[keep], self.center[keep], self.half[keep],
+                     self.radius[keep], self.knot_t[keep], self.knot_p[keep],
+                     self.knot_v[keep], self.known[keep])
+
+    @property
     def num_faces(self) -> int:
         """Finite workspace faces (the half-spaces the NLP constrains)."""
         return int(np.sum(np.isfinite(self.lo)) + np.sum(np.isfinite(self.hi)))
 
     def with_obstacles(self, obstacles) -> World:
         """A copy with these obstacles (dicts as in the config: kind, center, radius,
-        half_extents, half_height) in place of the current ones."""
+        half_extents, half_height, and for a moving one velocity or path = [{t, p}, ...]
+        and known_path) in place of the current ones."""
         kind, center, half, radius = obstacle_arrays(obstacles, self.dim)
-        return World(self.lo, self.hi, kind, center, half, radius)
+        knot_t, knot_p, knot_v, known = obstacle_motion(obstacles, center)
+        center = path_at(knot_t, knot_p, knot_v, np.float64(0.0))[0]
+        return World(self.lo, self.hi, kind, center, half, radius, knot_t, knot_p, knot_v,
+                     known)
 
     def obstacles(self) -> list[dict]:
-        """The obstacles as config dicts (what ``[[obstacles]]`` holds)."""
+        """The obstacles as config dicts (what ``[[obstacles]]`` holds; a moving one with
+        its velocity or its path and known_path)."""
         out = []
+        moving = self.moving
         for k in range(self.num_obstacles):
             kd = OBSTACLE_KINDS[int(self.kind[k])]
             d = {"kind": kd, "center": [float(x) for x in self.center[k]]}
@@ -123,6 +225,16 @@ class World:
                 d["radius"] = float(self.radius[k])
                 if kd == "cylinder" and self.dim == 3:
                     d["half_height"] = float(self.half[k, -1])
+            if moving[k]:
+                t, p = self.knot_t[k], self.knot_p[k]
+                keep = np.r_[True, (np.diff(t) > 0.0)]  # padding repeats its last knot
+                if keep.sum() == 1 and t[0] == 0.0:  # one knot at t = 0: a velocity
+                    d["velocity"] = [float(x) for x in self.knot_v[k]]
+                else:
+                    del d["center"]
+                    d["path"] = [{"t": float(tt), "p": [float(x) for x in pp]}
+                                 for tt, pp in zip(t[keep], p[keep], strict=True)]
+                d["known_path"] = bool(self.known[k])
             out.append(d)
         return out
 
@@ -142,7 +254,8 @@ def obstacle_arrays(obstacles, N: int):
     for k, o in enumerate(obstacles):
         kd = OBSTACLE_KINDS.index(o["kind"])
         kind[k] = kd
-        center[k] = o["center"]
+        # a path's obstacle has no centre: its first point (where it rests before it)
+        center[k] = o["center"] if o.get("center") is not None else o["path"][0]["p"]
         if kd == BOX:
             half[k] = o["half_extents"]
         else:
@@ -152,27 +265,37 @@ def obstacle_arrays(obstacles, N: int):
     return kind, center, half, radius
 
 
-# trajectories.npz keys of the world (docs/DESIGN.md "A run directory")
+# trajectories.npz keys of the world (docs/DESIGN.md "A run directory"); MOTION_KEYS
+# only where an obstacle moves (a run without them has static obstacles)
 WORLD_KEYS = ("world_lo", "world_hi", "obstacle_kind", "obstacle_center", "obstacle_half",
               "obstacle_radius")
+MOTION_KEYS = ("obstacle_knot_t", "obstacle_knot_p", "obstacle_knot_v", "obstacle_known_path")
 
 
 def world_arrays(world: World) -> dict[str, np.ndarray]:
-    """The world as trajectories.npz stores it (WORLD_KEYS)."""
-    return {"world_lo": world.lo, "world_hi": world.hi, "obstacle_kind": world.kind,
-            "obstacle_center": world.center, "obstacle_half": world.half,
-            "obstacle_radius": world.radius}
+    """The world as trajectories.npz stores it (WORLD_KEYS, and MOTION_KEYS where an
+    obstacle moves)."""
+    out = {"world_lo": world.lo, "world_hi": world.hi, "obstacle_kind": world.kind,
+           "obstacle_center": world.center, "obstacle_half": world.half,
+           "obstacle_radius": world.radius}
+    if world.has_motion:
+        out.update(obstacle_knot_t=world.knot_t, obstacle_knot_p=world.knot_p,
+                   obstacle_knot_v=world.knot_v, obstacle_known_path=world.known)
+    return out
 
 
 def world_from_arrays(raw, N: int) -> World:
-    """The world of a run's arrays (WORLD_KEYS); a run without them was planned in
-    unbounded empty space (:meth:`World.unbounded`).  Raises ValueError on bad shapes."""
+    """The world of a run's arrays (WORLD_KEYS, MOTION_KEYS where given); a run without
+    them was planned in unbounded empty space (:meth:`World.unbounded`).  Raises
+    ValueError on bad shapes."""
     if not all(k in raw for k in WORLD_KEYS):
         return World.unbounded(N)
     kind = np.asarray(raw["obstacle_kind"])
     if kind.size and (kind.min() < 0 or kind.max() >= len(OBSTACLE_KINDS)):
         raise ValueError(f"obstacle_kind: codes must lie in [0, {len(OBSTACLE_KINDS)})")
-    w = World(*(np.asarray(raw[k]) for k in WORLD_KEYS))
+    motion = [np.asarray(raw[k]) for k in MOTION_KEYS] if all(k in raw for k in MOTION_KEYS) \
+        else []
+    w = World(*(np.asarray(raw[k]) for k in WORLD_KEYS), *motion)
     if w.dim != N:
         raise ValueError(f"world_lo: the world is {w.dim}-D, the run {N}-D")
     return w
@@ -324,18 +447,28 @@ def _cylinder_jet(d, half, radius, xp):
 # ---------------------------------------------------------------------- NLP rows
 class StaticRows(NamedTuple):
     """The world as the NLP sees it (a pytree): R rows, obstacles then workspace faces,
-    padded; mask False = padding (ignored)."""
+    padded; mask False = padding (ignored).  motion: :class:`RowMotion` in a world with
+    a moving obstacle (``center`` is then where each row is at time 0: of the run, or of
+    the replan after :func:`rows_at`), None in a static world."""
 
     kind: object  # (R,) int32
     center: object  # (R, N)
     half: object  # (R, N)
     radius: object  # (R,)
     mask: object  # (R,) bool
+    motion: RowMotion | None = None
 
 
-def static_rows(world: World, rows: int | None = None) -> StaticRows:
+def rows_as_jax(rows: StaticRows) -> StaticRows:
+    """The rows' arrays as JAX arrays (motion None stays None)."""
+    return jax.tree.map(jnp.asarray, rows)
+
+
+def static_rows(world: World, rows: int | None = None, knots: int | None = None) -> StaticRows:
     """The obstacles and the finite workspace faces of ``world`` as R = ``rows`` static
-    rows (default: exactly those; more: masked padding; numpy arrays)."""
+    rows (default: exactly those; more: masked padding; numpy arrays).  ``knots``: the
+    rows' motion padded to that many knots (at least the world's; faces and padding at
+    rest); default: the world's own, and no motion (None) in a static world."""
     N = world.dim
     kinds = [world.kind]
     centers = [world.center]
@@ -369,7 +502,25 @@ def static_rows(world: World, rows: int | None = None) -> StaticRows:
         pad_half[:, 0] = 1.0
     half = np.concatenate([half, pad_half])
     radius = np.concatenate([radius, np.zeros(pad)])
-    return StaticRows(kind, center, half, radius, mask)
+    if knots is None and not world.has_motion:
+        return StaticRows(kind, center, half, radius, mask)
+    P = world.num_knots if knots is None else knots
+    if P < world.num_knots:
+        raise ValueError(f"static_rows: the world's motions have {world.num_knots} knots, "
+                         f"more than {P}")
+    K, extra = world.num_obstacles, R - world.num_obstacles
+    # obstacles' knots padded by repeating the last one; faces and padding at rest
+    kt = np.concatenate([world.knot_t, np.repeat(world.knot_t[:, -1:], P - world.num_knots,
+                                                 axis=1)], axis=1)
+    kp = np.concatenate([world.knot_p, np.repeat(world.knot_p[:, -1:], P - world.num_knots,
+                                                 axis=1)], axis=1)
+    motion = RowMotion(
+        np.concatenate([kt, np.zeros((extra, P))]).reshape(R, P),
+        np.concatenate([kp, np.repeat(center[K:, None, :], P, axis=1)]).reshape(R, P, N),
+        np.concatenate([world.knot_v, np.zeros((extra, N))]).reshape(R, N),
+        np.concatenate([world.known, np.zeros(extra, bool)]),
+        np.concatenate([world.moving, np.zeros(extra, bool)]))
+    return StaticRows(kind, center, half, radius, mask, motion)
 
 
 def face_names(world: World) -> list[str]:
@@ -386,9 +537,12 @@ def no_static_rows(N: int) -> StaticRows:
 
 
 # ---------------------------------------------------------------------- checks
-def point_problems(world: World, p, radius) -> list[tuple[str, int | None, float]]:
+def point_problems(world: World, p, radius, start: bool = True
+                   ) -> list[tuple[str, int | None, float]]:
     """Where a robot of ``radius`` at point p (N,) overlaps the world: a list of
-    (what, obstacle index or None for the workspace, clearance m < 0)."""
+    (what, obstacle index or None for the workspace, clearance m < 0).  A moving
+    obstacle counts where it is at t = 0 for a ``start``, else (a goal) where it comes
+    to rest, if it does (a constant velocity never does)."""
     p = np.asarray(p, np.float64)
     out = []
     for i in range(world.dim):
@@ -396,7 +550,12 @@ def point_problems(world: World, p, radius) -> list[tuple[str, int | None, float
             if np.isfinite(bound) and gap - radius < 0:
                 out.append(("workspace", None, float(gap - radius)))
     if world.num_obstacles:
-        sd = signed_distance(world.kind, world.center, world.half, world.radius, p)
+        center, there = world.center, np.ones(world.num_obstacles, bool)
+        if not start:  # a goal: where each obstacle stays (one that never rests: nowhere)
+            there = np.all(world.knot_v == 0.0, axis=1)
+            center = world.knot_p[:, -1]
+        sd = signed_distance(world.kind, center, world.half, world.radius, p)
+        sd = np.where(there, sd, np.inf)
         for k in np.flatnonzero(sd - radius < 0):
             out.append(("obstacle", int(k), float(sd[k] - radius)))
     return out

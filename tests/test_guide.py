@@ -20,7 +20,13 @@ from jaxplan.planner.guide import (
     segment_clearance,
 )
 from jaxplan.testing import random_obstacles
-from jaxplan.world import StaticRows, World, obstacle_arrays, signed_distance, static_rows
+from jaxplan.world import (
+    World,
+    obstacle_arrays,
+    rows_as_jax,
+    signed_distance,
+    static_rows,
+)
 
 # a wall at x = 0 (0.2 m thick) from y = 0.75 to y = 5, in the plane, the workspace
 # y in [-1, 5]: the only way from x > 0 to x < 0 is the opening y in [-1, 0.75]
@@ -33,7 +39,7 @@ def _world(obs, lo=LO, hi=HI):
 
 
 def _rows(world):
-    return StaticRows(*(jnp.asarray(a) for a in static_rows(world)))
+    return rows_as_jax(static_rows(world))
 
 
 _seg = jax.jit(jax.vmap(segment_clearance, in_axes=(None, 0, 0)))

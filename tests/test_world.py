@@ -20,14 +20,19 @@ from jaxplan.world import (
     ALL_KINDS,
     BOX,
     CYLINDER,
+    MOTION_KEYS,
     PLANE,
     SPHERE,
-    StaticRows,
     World,
+    centres_at,
     obstacle_arrays,
+    rows_as_jax,
+    rows_at,
     signed_distance,
     signed_distance_jet,
     static_rows,
+    world_arrays,
+    world_from_arrays,
 )
 
 
@@ -163,7 +168,7 @@ def test_merit_derivs_with_the_worlds_kinds_equal_every_kinds():
     mid = (p0 + pf) / 2
     w = World(np.array([-np.inf, -np.inf, min(p0[2], pf[2]) - 0.5]), np.full(3, np.inf),
               *obstacle_arrays([dict(kind="box", center=mid, half_extents=[0.3, 0.3, 0.4])], 3))
-    rows = StaticRows(*(jnp.asarray(a) for a in static_rows(w, 3)))  # box, ground, padding
+    rows = rows_as_jax(static_rows(w, 3))  # box, ground, padding
     p = p._replace(static=rows)
     st = NLPStructure(segments=2, n_coast_samples=4, n_static=3)
     mult = Multipliers(jnp.asarray(rng.uniform(0, 5, (st.n_col, p.other_mask.shape[-1]))),
@@ -210,7 +215,7 @@ def _world_near(p, rng, rows=10):
                             half_height=rng.uniform(0.3, 1.0)))
     w = World(np.array([-10.0, -10.0, min(p0[2], pf[2]) - 0.5]), np.array([np.inf, 10.0, np.inf]),
               *obstacle_arrays(obs, 3))
-    return StaticRows(*(jnp.asarray(a) for a in static_rows(w, rows)))
+    return rows_as_jax(static_rows(w, rows))
 
 
 @pytest.mark.parametrize("st,rest", [
@@ -266,6 +271,79 @@ def test_static_rows_structured_derivatives_match_autodiff(st, rest):
                                    atol=1e-9)
 
 
+def test_moving_rows_structured_derivatives_match_autodiff():
+    """Moving rows (a sphere flying on at its velocity, a cylinder along its known path
+    with knots inside the horizon, a static box) seen at t = 1.2 s: merit_derivs
+    (value, gradient, Hessian, constraints) equal autodiff of the reference terms, and
+    merit_shapes equals merit; the constraints are those of each sample against the
+    row where its motion puts it then."""
+    rng = np.random.default_rng(4)
+    st = NLPStructure(collision="barrier+constraint", segments=2, n_coast_samples=4,
+                      n_static=6, n_collision_samples=16, n_quadrature=4)
+    p = random_problem(rng, n_others=2, mo=2, w=weights(q_lim=0.5))
+    p0, pf = np.asarray(p.p0), np.asarray(p.goal_p)
+    mid = (p0 + pf) / 2
+    d = (pf - p0) / np.linalg.norm(pf - p0)
+    side = np.cross(d, [0.0, 0.0, 1.0])
+    obs = [dict(kind="sphere", center=list(mid + 1.5 * side), radius=0.4,
+                velocity=list(-0.8 * side)),
+           dict(kind="cylinder", radius=0.3, half_height=1.0, known_path=True,
+                path=[{"t": 1.0, "p": list(p0 + 0.3 * (pf - p0) - side)},
+                      {"t": 2.5, "p": list(p0 + 0.3 * (pf - p0) + side)},
+                      {"t": 4.0, "p": list(p0 + 0.7 * (pf - p0))}]),
+           dict(kind="box", center=list(mid + [0.0, 0.0, 1.5]), half_extents=[0.3, 0.3, 0.3])]
+    w = World(np.array([-np.inf, -np.inf, min(p0[2], pf[2]) - 0.8]), np.full(3, np.inf),
+              np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 3)),
+              np.zeros(0)).with_obstacles(obs)
+    rows = rows_at(rows_as_jax(static_rows(w, 6)), 1.2)
+    p = p._replace(static=rows)
+    b = nlp.basis(st)
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, p.other_mask.shape[-1]))),
+                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))),
+                       jnp.asarray(rng.uniform(0, 50, (st.n_col, 6))))
+    kc = nlp.kind_constants(p.rest, st)
+    x = np.zeros(st.n_x)
+    x[:-1] = rng.normal(size=st.n_x - 1) * 0.05
+    x[-1] = np.log(3.0)
+    x = jnp.asarray(x)
+    f = lambda xx: nlp.merit(xx, p, st, kc, mult, 30.0)
+    z, tau = nlp.unpack(x, st)
+    zs = jnp.stack([z, 1.1 * z, -z])
+    # (the reference's jax.hessian would cost ~8 s of compile: the structured Hessian is
+    # checked against central differences of the structured gradient, which is checked
+    # against autodiff)
+    derivs = jax.jit(lambda xx: nlp.merit_derivs(xx, p, st, kc, mult, 30.0, with_g=True))
+    ref = jax.jit(lambda xx: (f(xx), jax.grad(f)(xx), nlp.constraints(xx, p, st)))
+    shapes = jax.jit(lambda: nlp.merit_shapes(zs, tau, p, st, kc, mult, 30.0))()
+    v, g, H, gg = derivs(x)
+    vr, gr, c = ref(x)
+    assert np.all(np.isfinite(H))
+    np.testing.assert_allclose(v, vr, rtol=1e-12)
+    np.testing.assert_allclose(g, gr, rtol=1e-9, atol=1e-9 * np.max(np.abs(g)))
+    np.testing.assert_allclose(gg.static, c.static, rtol=1e-12, atol=1e-12)
+    h = 1e-6
+    Hfd = np.stack([(derivs(x.at[i].add(h))[1] - derivs(x.at[i].add(-h))[1]) / (2 * h)
+                    for i in range(st.n_x)], axis=1)
+    np.testing.assert_allclose(H, Hfd, rtol=1e-5, atol=1e-6 * np.max(np.abs(H)))
+    for zz, val in zip(zs, shapes, strict=True):
+        np.testing.assert_allclose(val, derivs(nlp.pack(zz, tau))[0], rtol=1e-11)
+    # the constraints: each sample against the rows where they are at 1.2 s + its time
+    traj = nlp.to_trajectory(x, p, st)
+    s, off, _, _ = nlp.collision_rows(p, st)
+    tk = np.asarray(traj.duration * s + off)[:st.n_collision_samples]
+    pos = np.asarray(traj.evaluate(tk))
+    cen = w.center_at(1.2 + tk)[0]  # (K, 3, N): the truth; the sphere flies on
+    cen[:, 0] = w.center_at(1.2)[0][0] + np.outer(tk, w.center_at(1.2)[1][0])
+    sd = np.stack([signed_distance(w.kind, cen[k], w.half, w.radius, pos[k]) for k in
+                   range(tk.size)])
+    r = float(p.radius)
+    sd0 = signed_distance(w.kind, w.center_at(1.2)[0], w.half, w.radius, np.asarray(p.p0))
+    want = 4 * STATIC_PRIORITY * r * (sd - r - np.minimum(sd0 - r, 0.0))
+    np.testing.assert_allclose(np.asarray(c.static)[:st.n_collision_samples, :3], want,
+                               atol=1e-9)
+    assert np.any(want < 0)  # some sample inside a moving row
+
+
 _ST = NLPStructure(collision="barrier+constraint", segments=2, n_static=2)
 _PILLAR = World.default(3).with_obstacles([dict(kind="cylinder", center=[3.0, 0.0, 1.5],
                                                radius=0.4, half_height=1.5)])
@@ -280,7 +358,7 @@ def _solve_one(P):
 
 def _one_robot(p0, goal, r=0.3):
     N = 3
-    rows = StaticRows(*(jnp.asarray(a) for a in static_rows(_PILLAR)))
+    rows = rows_as_jax(static_rows(_PILLAR))
     z = jnp.zeros(N)
     others = Trajectory.hold(jnp.full((1, N), 100.0))
     return NLPParams(jnp.asarray(p0, float), z, z, jnp.asarray(goal, float), z, z,
@@ -434,7 +512,7 @@ def test_nearest_static_rows_match_brute_force():
     M, K = 9, 5
     p = rng.uniform(-6, 6, (M, 3))
     r = rng.uniform(0.2, 0.5, M)
-    jrows = StaticRows(*(jnp.asarray(a) for a in rows))
+    jrows = rows_as_jax(rows)
     idx = np.asarray(jax.jit(planner.nearest_static_rows, static_argnums=3)(
         jrows, jnp.asarray(p), jnp.asarray(r), K))
     gap = signed_distance(*rows[:4], p) - r[:, None]
@@ -444,7 +522,7 @@ def test_nearest_static_rows_match_brute_force():
     sel, idx2 = jax.jit(planner.select_static, static_argnums=3)(jrows, jnp.asarray(p),
                                                                  jnp.asarray(r), K)
     np.testing.assert_array_equal(idx2, idx)
-    for a, b in zip(sel, rows, strict=True):
+    for a, b in zip(jax.tree.leaves(sel), jax.tree.leaves(rows), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[idx])
     # where each robot is and is headed: the previous plan's points (robots with a plan)
     # and the line to its goal; each row keyed by its least clearance over the points
@@ -497,7 +575,7 @@ def test_static_multipliers_follow_their_row_across_a_reselection():
                      multipliers=ps.multipliers._replace(static=jnp.asarray(lam)))
     rows, sidx, out = _static_slots(fp, ps, p, st)
     np.testing.assert_array_equal(sidx, want)
-    for a, b in zip(rows, fp.static, strict=True):
+    for a, b in zip(jax.tree.leaves(rows), jax.tree.leaves(fp.static), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[want])
     out = np.asarray(out)
     for m in range(3):
@@ -518,7 +596,7 @@ def test_as_many_static_rows_as_the_world_has_is_no_selection():
     ps = ps._replace(multipliers=ps.multipliers._replace(static=jnp.asarray(lam)))
     rows, sidx, out = _static_slots(fp, ps, p, st)
     np.testing.assert_array_equal(sidx, np.broadcast_to(np.arange(12), (3, 12)))
-    for a, b in zip(rows, fp.static, strict=True):
+    for a, b in zip(jax.tree.leaves(rows), jax.tree.leaves(fp.static), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.broadcast_to(b, a.shape))
     np.testing.assert_array_equal(np.asarray(out), lam)
 
@@ -587,8 +665,114 @@ def test_world_config_round_trips_and_builds():
      "w.toml: planner.max_static_rows: must be >= 0, got -1"),
     (('name = "w"', 'name = "w"\n[planner]\nmax_static_rows = 2.5'),
      "w.toml: planner.max_static_rows: expected an integer, got 2.5"),
+    # moving obstacles
+    (("center = [2.5, 0, 1.5]", "path = [{t = 0, p = [2.5, 3, 1.5]}, {t = 2, p = [2.5, 1, 1.5]},"
+      " {t = 1, p = [2.5, -3, 1.5]}]"),
+     "w.toml: obstacles[0].path[2].t: goes back in time: 1 s is not after path[1].t = 2 s"),
+    (("center = [2.5, 0, 1.5]", "path = [{t = 0, p = [2.5, 3, 1.5]}, {t = 0, p = [2.5, 1, 1.5]}]"),
+     "w.toml: obstacles[0].path[1].t: goes back in time: 0 s is not after path[0].t = 0 s"),
+    (("center = [2.5, 0, 1.5]", "path = [{t = 0, p = [2.5, 3, 1.5]}, {t = 2, p = [2.5, 1]}]"),
+     "w.toml: obstacles[0].path[1].p: expected 3 coordinates"),
+    (("center = [2.5, 0, 1.5]", "path = [{t = 0, p = [2.5, 3, 1.5], v = 1}]"),
+     "w.toml: obstacles[0].path[0].v: unknown key; valid keys: t, p"),
+    (("center = [2.5, 0, 1.5]", "path = []"), "w.toml: obstacles[0].path: expected a non-empty"),
+    (("half_height = 1.5", "half_height = 1.5\nvelocity = [0, 1, 0]\n"
+      "path = [{t = 0, p = [2.5, 3, 1.5]}]"),
+     "w.toml: obstacles[0].path: give either velocity (a constant velocity) or path"),
+    (("half_height = 1.5", "half_height = 1.5\npath = [{t = 0, p = [2.5, 3, 1.5]}]"),
+     "w.toml: obstacles[0].center: a moving obstacle with a path takes its positions from the "
+     "path; give no center"),
+    (("half_height = 1.5", "half_height = 1.5\naxis = [1, 0, 0]"),
+     "w.toml: obstacles[0].axis: a cylinder must be vertical: its axis must be [0, 0, 1], got "
+     "[1.0, 0.0, 0.0]"),
+    (("half_height = 1.5", "half_height = 1.5\nvelocity = [0, inf, 0]"),
+     "w.toml: obstacles[0].velocity[1]: expected a finite number, got inf"),
+    (("half_height = 1.5", "half_height = 1.5\nvelocity = [0, 1]"),
+     "w.toml: obstacles[0].velocity: expected 3 coordinates"),
+    (("center = [2.5, 0, 1.5]",
+      "path = [{t = 0, p = [2.5, 3, 1.5]}, {t = 5e-324, p = [2.5, 1, 1.5]}]"),
+     "w.toml: obstacles[0].path[1].t: the speed from path[0] is not finite"),
+    (('kind = "cylinder"\ncenter = [2.5, 0, 1.5]\nradius = 0.3\nhalf_height = 1.5',
+      'kind = "box"\ncenter = [2.5, 0, 1.5]\nhalf_extents = [1, 1, 1]\nvelocity = [0, 1, 0]'),
+     "w.toml: obstacles[0].velocity: a box cannot move (only spheres and cylinders move)"),
+    (("half_height = 1.5", "half_height = 1.5\nvelocity = [0, 1, 0]\n[sim]\nbackend = 'mjx'"),
+     "w.toml: sim.backend: moving obstacles (obstacles[0] moves) fly with backend 'ideal'"),
 ])
 def test_world_config_errors_name_the_key(edit, message):
     with pytest.raises(ConfigError) as e:
         _cfg(BASE.replace(*edit))
     assert str(e.value).startswith(message), str(e.value)
+
+
+MOVING = BASE.replace("center = [2.5, 0, 1.5]", "path = [{t = 1.0, p = [2.5, 3, 0.9]}, "
+                      "{t = 4.0, p = [2.5, -3, 0.9]}]").replace("half_height = 1.5",
+                                                              "half_height = 0.9") + """
+[[obstacles]]
+kind = "sphere"
+center = [4, 2, 1]
+radius = 0.3
+velocity = [0, -0.5, 0]
+known_path = true
+"""
+
+
+def test_moving_obstacles_round_trip_config_world_and_file_arrays():
+    """A path and a constant velocity: the resolved config.toml reads back equal (the
+    defaults written out), the world moves as they say, and its trajectories.npz arrays
+    give the same world back; a static world writes no motion keys."""
+    c = _cfg(MOVING)
+    text = config_to_toml(c)
+    assert "known_path = false" in text and "known_path = true" in text
+    assert _cfg(text) == c
+    w = build_scenario(c).world
+    np.testing.assert_array_equal(w.moving, [True, True])
+    np.testing.assert_array_equal(w.known, [False, True])
+    cen, vel = w.center_at(np.array([0.0, 2.5, 9.0]))
+    np.testing.assert_allclose(cen[:, 0], [[2.5, 3, 0.9], [2.5, 0, 0.9], [2.5, -3, 0.9]])
+    np.testing.assert_allclose(vel[:, 0], [[0, 0, 0], [0, -2, 0], [0, 0, 0]])
+    np.testing.assert_allclose(cen[:, 1], [[4, 2, 1], [4, 0.75, 1], [4, -2.5, 1]])
+    np.testing.assert_allclose(vel[:, 1], [[0, -0.5, 0]] * 3)
+    assert w.obstacles()[0]["path"][1] == {"t": 4.0, "p": [2.5, -3.0, 0.9]}
+    arrays = world_arrays(w)
+    assert set(MOTION_KEYS) <= set(arrays)
+    back = world_from_arrays(arrays, 3)
+    for k in ("center", "knot_t", "knot_p", "knot_v", "known"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(w, k))
+    static = build_scenario(_cfg(BASE)).world
+    assert not static.has_motion and not set(MOTION_KEYS) & set(world_arrays(static))
+    assert static_rows(static).motion is None
+
+
+def test_rows_at_predict_flying_on_or_the_known_path():
+    """A replan at t = 2 s sees the path's obstacle (unknown path) at its position then,
+    flying on at its velocity then, and the sphere (known path: a constant velocity)
+    along its path; the faces stay put."""
+    w = build_scenario(_cfg(MOVING)).world
+    rows = rows_as_jax(static_rows(w, 6))
+    assert rows.motion is not None and rows.motion.t.shape == (6, 2)
+    now = jax.jit(rows_at)(rows, 2.0)
+    tau = jnp.array([0.0, 1.0, 5.0])
+    cen = np.asarray(jax.jit(centres_at)(now, tau))  # (3, 6, 3)
+    np.testing.assert_allclose(cen[:, 0], [[2.5, 1, 0.9], [2.5, -1, 0.9], [2.5, -9, 0.9]])
+    np.testing.assert_allclose(cen[:, 1], w.center_at(2.0 + np.asarray(tau))[0][:, 1])
+    np.testing.assert_allclose(cen[:, 2:], np.broadcast_to(np.asarray(rows.center)[2:],
+                                                           (3, 4, 3)))
+    np.testing.assert_array_equal(np.asarray(now.motion.moving), [1, 1, 0, 0, 0, 0])
+
+
+@pytest.mark.slow  # a run of its own program (~30 s to compile)
+def test_a_robot_gives_way_to_a_moving_obstacle_it_sees():
+    """A cylinder crosses a robot's straight line at about the time it gets there: the
+    planner sees it (its position and velocity at each replan), the robot leaves its
+    line to keep clear (exact clearance against the moving body >= 0) and arrives."""
+    from jaxplan.experiment import run
+
+    text = BASE.replace("center = [2.5, 0, 1.5]", "center = [2.5, 2.5, 1.0]").replace(
+        "half_height = 1.5", "half_height = 1.0\nvelocity = [0, -1.0, 0]")
+    text += "[sim]\nduration_s = 8.0\n"
+    res = run(_cfg(text))
+    m = res.metrics
+    assert m["success"], m
+    assert m["obstacle_collisions"] == 0 and m["min_obstacle_clearance_m"] >= 0.0
+    # it left its straight line (y = 0) to let the cylinder pass
+    assert np.max(np.abs(res.arrays["pos"][0, :, 1])) > 0.2

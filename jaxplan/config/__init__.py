@@ -12,7 +12,8 @@
                goal_speed_tolerance_mps
     [[robots]] vehicle, start, goal | waypoints, goal_velocity, end_state
     [scenario] kind = "paper:<name>" | "antipodal_sphere" | "random_box" | "grid_swap"
-               | "stacked" | "pillars" | "wall_gap" | "low_ceiling" | "random_obstacles",
+               | "stacked" | "pillars" | "wall_gap" | "low_ceiling" | "random_obstacles"
+               | "crossing_traffic",
                and the generator's keys (its parameter model in
                jaxplan/scenarios/generators.py or worlds.py, e.g. RandomBoxParams)
     [sweep]    q_obs, q_lim (lists or {log_min, log_max, num}, base-10 exponents),
@@ -22,7 +23,8 @@
                frozen_mode (jaxplan/faults.py; off by default)
     [workspace] min, max              (per axis, inf = unbounded; 3-D default: z >= 0)
     [[obstacles]] kind = "sphere" | "box" | "cylinder", center, radius, half_extents,
-               half_height            (jaxplan/world.py)
+               half_height, axis; moving: velocity | path = [{t, p}, ...], known_path
+                                      (jaxplan/world.py)
     [tune]     weights (a table: name = {low, high, log}), scenarios, seeds, holdout_seeds,
                objective, min_success_rate, min_separation_ratio, trials, batch, sampler,
                enqueue_defaults (read by `jaxplan tune`, jaxplan/tune/)

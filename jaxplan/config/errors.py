@@ -57,7 +57,7 @@ _WRONG_TYPE = {"float_type": "a number", "int_type": "an integer", "string_type"
                "finite_number": "a finite number"}
 
 
-def _unknown(key: str, allowed: tuple[str, ...]) -> tuple[str, str]:
+def unknown_key(key: str, allowed: tuple[str, ...]) -> tuple[str, str]:
     """(the key as a message shows it, the problem) of an unknown key."""
     near = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
     hint = f"; did you mean {near[0]!r}?" if near else f"; valid keys: {', '.join(allowed)}"
@@ -65,7 +65,7 @@ def _unknown(key: str, allowed: tuple[str, ...]) -> tuple[str, str]:
 
 
 def _unknown_key(key: str, allowed: tuple[str, ...], prefix: str) -> InvalidValue:
-    shown, problem = _unknown(key, allowed)
+    shown, problem = unknown_key(key, allowed)
     return InvalidValue(_join(prefix, shown), problem)
 
 
@@ -91,7 +91,7 @@ def table_keys(t: dict, allowed: tuple[str, ...] | None = None) -> None:
         if not isinstance(k, str):
             raise FieldProblem(f"expected string keys, got {show(k)}")
         if allowed is not None and k not in allowed:
-            shown, problem = _unknown(k, allowed)
+            shown, problem = unknown_key(k, allowed)
             raise FieldProblem(problem, key=shown)
 
 

@@ -9,6 +9,8 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from jaxplan import scenarios
 from jaxplan.config.errors import InvalidValue, as_table, check_keys, validate_value
 from jaxplan.config.model import TOP_KEYS, Config
@@ -167,6 +169,13 @@ def _check_fleet(config: Config, goal_keys: list[str]) -> None:
                                              f"and this world has {fleet.world.num_obstacles}; "
                                              "remove them, or use 'krishnan' (or 'orca' for "
                                              "a planar fleet)")
+
+    if fleet.world.has_motion and (config.sim.backend != "ideal"
+                                   or config.planner.method != "krishnan"):
+        k = int(np.flatnonzero(fleet.world.moving)[0])
+        key = "sim.backend" if config.sim.backend != "ideal" else "planner.method"
+        raise InvalidValue(key, f"moving obstacles (obstacles[{k}] moves) fly with backend "
+                                "'ideal' and method 'krishnan' only for now")
 
     problems = scenarios.scenario_problems(fleet, max_problems=1, label=label)
     if problems:

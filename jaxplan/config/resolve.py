@@ -162,7 +162,7 @@ def config_world(config: Config, generated: World | None, N: int) -> World:
     lo = np.array(ws.min, float) if ws.min is not None else base.lo
     hi = np.array(ws.max, float) if ws.max is not None else base.hi
     obstacles = base.obstacles() + [o.as_dict() for o in config.obstacles]
-    return World(lo, hi, *obstacle_arrays(obstacles, N))
+    return World(lo, hi, *obstacle_arrays([], N)).with_obstacles(obstacles)
 
 
 def build_scenario(config: Config) -> Scenario:

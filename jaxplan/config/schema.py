@@ -21,6 +21,7 @@ from pydantic import (
 )
 from pydantic.dataclasses import dataclass
 
+from jaxplan.config.errors import unknown_key
 from jaxplan.fields import (
     MAX_COORD,
     MAX_ROBOTS,
@@ -367,25 +368,76 @@ class WorkspaceConfig:
 
 
 OBSTACLE_KINDS = ("sphere", "box", "cylinder")
-OBSTACLE_KEYS = ("kind", "center", "radius", "half_extents", "half_height")
+OBSTACLE_KEYS = ("kind", "center", "radius", "half_extents", "half_height", "axis",
+                 "velocity", "path", "known_path")
+MAX_PATH_POINTS = 64  # timed points of a moving obstacle's path
+PathTime = number(ge=-MAX_COORD, le=MAX_COORD)  # s
+
+
+@dataclass(frozen=True, config=SECTION_CONFIG)
+class PathPoint:
+    """One timed point of a moving obstacle's ``path``: t (s), p (m, N coordinates)."""
+
+    t: PathTime
+    p: Position
+
+
+def _path_list(v: Any) -> Any:
+    if not isinstance(v, (list, tuple)) or not v:
+        raise FieldProblem(f"expected a non-empty array of tables {{t = ..., p = [...]}}, got "
+                           f"{show(v)}")
+    if len(v) > MAX_PATH_POINTS:
+        raise FieldProblem(f"at most {MAX_PATH_POINTS} points, got {len(v)}")
+    for i, q in enumerate(v):
+        if not isinstance(q, dict):
+            raise FieldProblem(f"expected a table {{t = ..., p = [...]}}, got {show(q)}",
+                               key=f"[{i}]")
+        for k in q:
+            if k not in ("t", "p"):
+                shown, problem = unknown_key(str(k), ("t", "p"))
+                raise FieldProblem(problem, key=f"[{i}].{shown}")
+    return v
+
+
+Path = Annotated[tuple[PathPoint, ...], BeforeValidator(_path_list)]
 
 
 @dataclass(frozen=True, config=SECTION_CONFIG)
 class ObstacleConfig:
-    """One [[obstacles]] entry: a static, axis-aligned obstacle (m).  kind = "sphere"
-    (center, radius), "box" (center, half_extents) or "cylinder" (vertical axis:
-    center, radius, half_height; in 2-D a disc: center, radius)."""
+    """One [[obstacles]] entry: an axis-aligned obstacle (m), static or moving.  kind =
+    "sphere" (center, radius), "box" (center, half_extents) or "cylinder" (vertical
+    axis: center, radius, half_height; ``axis``, if given, must be vertical; in 2-D a
+    disc: center, radius).  A sphere or a cylinder may move: ``velocity`` (m/s, from
+    its center at t = 0 on for ever) or ``path`` (timed points {t, p} instead of a
+    center: at rest at its first point before its first time, piecewise linear between
+    them, at rest at its last point after the last; the times strictly increase), and
+    ``known_path`` (default false: the robots know only its position and velocity at
+    each replan; true: its whole future path) (jaxplan/world.py, "Motion")."""
 
     kind: string(one_of(OBSTACLE_KINDS))
-    center: Position
+    center: Position = None
     radius: PositiveLength = None
     half_extents: Position = None
     half_height: PositiveLength = None
+    axis: Position = None
+    velocity: Position = None
+    path: Path = None
+    known_path: Annotated[bool, Strict()] = None
 
     @model_validator(mode="after")
     def _keys_of_kind(self) -> ObstacleConfig:
+        if self.velocity is not None and self.path is not None:
+            raise FieldProblem("give either velocity (a constant velocity) or path (timed "
+                               "points), not both", key="path")
+        if self.path is not None and self.center is not None:
+            raise FieldProblem("a moving obstacle with a path takes its positions from the "
+                               "path; give no center", key="center")
+        if self.path is None and self.center is None:
+            raise FieldProblem("missing; give the obstacle's center (or, for a moving one, "
+                               "a path)", key="center")
+        N = len(self.center if self.center is not None else self.path[0].p)
         need = {"sphere": ("radius",), "box": ("half_extents",),
-                "cylinder": ("radius", "half_height") if len(self.center) == 3 else ("radius",)}
+                "cylinder": ("radius", "half_height") if N == 3 else ("radius",)}
         for key in need[self.kind]:
             if getattr(self, key) is None:
                 raise FieldProblem(f"missing; a {self.kind} needs {' and '.join(need[self.kind])}",
@@ -397,10 +449,46 @@ class ObstacleConfig:
         if self.half_extents is not None and any(h <= 0 for h in self.half_extents):
             raise FieldProblem(f"must be positive, got {show(list(self.half_extents))}",
                                key="half_extents")
+        self._check_axis(N)
+        self._check_motion()
+        if self.known_path is None and (self.velocity is not None or self.path is not None):
+            object.__setattr__(self, "known_path", False)  # the default, written out
         return self
 
+    def _check_axis(self, N: int) -> None:
+        if self.axis is None:
+            return
+        if self.kind != "cylinder" or N != 3:
+            what = "disc" if self.kind == "cylinder" else self.kind
+            raise FieldProblem(f"a {what} takes no axis (only a 3-D cylinder has one, "
+                               "vertical)", key="axis")
+        if self.axis[0] != 0.0 or self.axis[1] != 0.0 or self.axis[2] == 0.0:
+            raise FieldProblem(f"a cylinder must be vertical: its axis must be [0, 0, 1], "
+                               f"got {show(list(self.axis))}", key="axis")
+
+    def _check_motion(self) -> None:
+        for key in ("velocity", "path"):
+            if getattr(self, key) is not None and self.kind == "box":
+                raise FieldProblem(f"a box cannot move (only spheres and cylinders move); "
+                                   f"remove {key}", key=key)
+        if self.path is None:
+            return
+        for i in range(1, len(self.path)):
+            a, b = self.path[i - 1], self.path[i]
+            if not b.t > a.t:
+                raise FieldProblem(f"goes back in time: {b.t:g} s is not after "
+                                   f"path[{i - 1}].t = {a.t:g} s (the times must strictly "
+                                   "increase)", key=f"path[{i}].t")
+            step = math.dist(a.p, b.p) / (b.t - a.t) if b.t - a.t > 0 else math.inf
+            if not math.isfinite(step):
+                raise FieldProblem(f"the speed from path[{i - 1}] is not finite "
+                                   f"({step:g} m/s)", key=f"path[{i}].t")
+
     def as_dict(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in OBSTACLE_KEYS if getattr(self, k) is not None}
+        d = {k: getattr(self, k) for k in OBSTACLE_KEYS if getattr(self, k) is not None}
+        if self.path is not None:
+            d["path"] = [{"t": q.t, "p": list(q.p)} for q in self.path]
+        return d
 
 
 def _plain_name(name: str) -> str:

@@ -50,6 +50,17 @@ would, and the cases below show that none is missed.
   stationary point of the rim distance (squaring only adds roots, harmless extra
   candidates).  So the cylinder is exact as well, with no bound-and-refine step.
 
+Moving obstacles (:mod:`jaxplan.world`, "Motion": a piecewise-linear centre c(t)).
+Each piece is cut at the obstacle's knot times; on each cut [a, b] the centre moves
+linearly, c(t) = c(a) + v (t - a), so the relative position x(t) - c(t) is again a
+polynomial: the piece's coefficients re-expressed in t - a (the Taylor shift of
+:func:`jaxplan.metrics.pieces.to_unit`), minus c(a) in the constant term and v in the
+linear one.  The relative pieces then go through the machinery above against the
+obstacle centred at the origin (so the candidates and the values are those of the
+relative polynomials: exact up to the round-off of the shift, ~1e-15 relative).  A
+static obstacle (a world without motion, or the static obstacles of one with) is solved
+exactly as before, on the original pieces.
+
 Speed.  Only the (piece, obstacle) and (piece, face) pairs that can hold their (robot,
 obstacle) or (robot, face) minimum are solved: a lower bound per pair (the distance from
 the piece's Bernstein bounding box, which encloses the piece, to the obstacle or the
@@ -71,19 +82,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxplan.metrics.candidates import box_candidates, compact, cylinder_candidates, roots
 from jaxplan.metrics.pieces import (
     CHUNK,
-    NEWTON_STEPS,
     bernstein,
     check_pieces,
     deriv,
-    dot_conv,
     horner,
     stationary_candidates,
     to_unit,
-    unit_roots,
 )
-from jaxplan.world import BOX, CYLINDER, SPHERE, World
+from jaxplan.world import BOX, CYLINDER, SPHERE, World, path_at
 
 __all__ = ["WorldClearance", "world_clearance", "world_report", "face_names",
            "exact_signed_distance"]
@@ -141,184 +150,6 @@ def _sd_kind(code, center, half, radius, p):
         q = np.stack([np.hypot(d[..., 0], d[..., 1]) - radius[:, None],
                       np.abs(d[..., 2]) - half[:, None, 2]], axis=-1)
     return np.sqrt(np.sum(np.maximum(q, 0.0) ** 2, axis=-1)) + np.minimum(q.max(axis=-1), 0.0)
-
-
-# ---------------------------------------------------------------------- roots
-
-
-def _hv(g, u):
-    """Scalar polynomials g (B, L) at u (B, C) -> (B, C)."""
-    return horner(g[:, None, :], u)[..., 0]
-
-
-def _mul(a, b):
-    """Products of scalar polynomials a (B, La), b (B, Lb) -> (B, La+Lb-1)."""
-    return dot_conv(a[:, None, :], b[:, None, :])
-
-
-def _add(a, b):
-    """Sums of scalar polynomials of any lengths (B, La) + (B, Lb)."""
-    L = max(a.shape[1], b.shape[1])
-    out = np.zeros((a.shape[0], L))
-    out[:, : a.shape[1]] += a
-    out[:, : b.shape[1]] += b
-    return out
-
-
-def _roots(g):
-    """Candidate roots in [0, 1] of scalar polynomials g (B, L): every (clipped) real part
-    of a companion eigenvalue (:func:`jaxplan.metrics.pieces.unit_roots`) and its copies
-    after one and two Newton steps on g -> (B, (L-1) x 3)."""
-    u = unit_roots(g)
-    if u.shape[1] == 0:
-        return u
-    dg = deriv(g)
-    out = [u]
-    for _ in range(NEWTON_STEPS):
-        f, df = _hv(g, u), _hv(dg, u)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.where(df != 0.0, f / df, 0.0)
-        u = np.clip(u - np.where(np.isfinite(step), step, 0.0), 0.0, 1.0)
-        out.append(u)
-    return np.concatenate(out, axis=1)
-
-
-def _cuts(u):
-    """Sorted cut points (with 0 and 1) of candidate roots u (B, C) -> sub-interval
-    midpoints (B, C+1) and which are non-empty (B, C+1)."""
-    B = u.shape[0]
-    br = np.sort(np.concatenate([np.zeros((B, 1)), u, np.ones((B, 1))], axis=1), axis=1)
-    return 0.5 * (br[:, :-1] + br[:, 1:]), br[:, 1:] > br[:, :-1]
-
-
-def _compact(u):
-    """The distinct candidates of each row of u (B, C), padded with repeats -> (B, C')."""
-    if u.shape[1] < 2:
-        return u
-    u = np.sort(u, axis=1)
-    dup = np.zeros(u.shape, bool)
-    dup[:, 1:] = u[:, 1:] == u[:, :-1]
-    W = int((~dup).sum(axis=1).max())
-    return np.take_along_axis(u, np.argsort(dup, axis=1, kind="stable")[:, :W], axis=1)
-
-
-def _group_roots(row, key, make):
-    """Candidate roots per (row, key) group: ``make(rows, keys)`` -> polynomials (G, L)
-    for the distinct groups; returns (rows (G,), roots (G, C))."""
-    code = np.unique(np.stack([row, key], axis=1), axis=0)
-    if code.shape[0] == 0:
-        return code[:, 0], np.zeros((0, 0))
-    return code[:, 0], _roots(make(code[:, 0], code[:, 1]))
-
-
-def _scatter(B, rows, roots, parts):
-    """Append per-row candidates from (rows (G,), roots (G, C)) groups to ``parts`` as a
-    (B, C x max-multiplicity) array padded with 0 (0 is a candidate anyway)."""
-    if rows.size == 0 or roots.shape[1] == 0:
-        return
-    order = np.argsort(rows, kind="stable")
-    rows, roots = rows[order], roots[order]
-    first = np.searchsorted(rows, rows, side="left")
-    slot = np.arange(rows.size) - first
-    W = int(slot.max()) + 1
-    out = np.zeros((B, W, roots.shape[1]))
-    out[rows, slot] = roots
-    parts.append(out.reshape(B, -1))
-
-
-# ---------------------------------------------------------------------- candidates
-
-
-def _box_candidates(d, h):
-    """Candidate u (B, C) of the minimum of the box distance; d (B, N, L) the piece
-    minus the centre in u, h (B, N) half extents (module doc)."""
-    B, N, L = d.shape
-    zero_one = [np.zeros((B, 1)), np.ones((B, 1))]
-    planes = np.concatenate([d, d], axis=1)
-    planes[:, :N, 0] -= h
-    planes[:, N:, 0] += h
-    cut = _roots(planes.reshape(B * 2 * N, L)).reshape(B, -1)
-    dd = deriv(d)
-    stat = _roots(dd.reshape(B * N, -1)).reshape(B, -1)
-    parts = zero_one + [cut, stat]
-    mid, live = _cuts(cut)
-    x = horner(d, mid)  # (B, J, N)
-    side = np.where(x > h[:, None, :], 1, np.where(x < -h[:, None, :], -1, 0))  # (B, J, N)
-    code = np.sum((side + 1) * 3 ** np.arange(N), axis=-1)  # (B, J)
-    inside_code = int(np.sum(3 ** np.arange(N)))
-    rows = np.broadcast_to(np.arange(B)[:, None], code.shape)
-    out_sel = live & (code != inside_code)
-
-    def outside_poly(r, cd):
-        s = (cd[:, None] // 3 ** np.arange(N)) % 3 - 1  # (G, N)
-        e = d[r].copy()
-        e[:, :, 0] -= s * h[r]
-        e = np.where(s[:, :, None] != 0, e, 0.0)
-        return dot_conv(e, dd[r])
-
-    _scatter(B, *_group_roots(rows[out_sel], code[out_sel], outside_poly), parts)
-    ins = np.nonzero(np.any(live & (code == inside_code), axis=1))[0]
-    if ins.size:
-        di, hi = d[ins], h[ins]
-        polys = [di[:, i] for i in range(N)]  # kinks of |d_i|
-        for i in range(N):
-            for j in range(i + 1, N):
-                for si in (1.0, -1.0):
-                    for sj in (1.0, -1.0):
-                        g = si * di[:, i] - sj * di[:, j]
-                        g[:, 0] += hi[:, j] - hi[:, i]
-                        polys.append(g)
-        r = _roots(np.concatenate(polys, axis=0)).reshape(len(polys), ins.size, -1)
-        _scatter(B, np.repeat(ins, len(polys)), r.transpose(1, 0, 2).reshape(-1, r.shape[2]),
-                 parts)
-    return np.concatenate(parts, axis=1)
-
-
-def _cylinder_candidates(d, R, H):
-    """Candidate u (B, C) of the minimum of the 3-D cylinder distance; d (B, 3, L) the
-    piece minus the centre in u, R (B,) radius, H (B,) half height (module doc)."""
-    B = d.shape[0]
-    P = dot_conv(d[:, :2], d[:, :2])  # (B, 2L-1): rho^2
-    Pd = deriv(P)
-    z = d[:, 2]
-    zd = deriv(z)
-    ring = P.copy()
-    ring[:, 0] -= R**2
-    top, bot = z.copy(), z.copy()
-    top[:, 0] -= H
-    bot[:, 0] += H
-    cut = np.concatenate([_roots(ring), _roots(top), _roots(bot)], axis=1)
-    parts = [np.zeros((B, 1)), np.ones((B, 1)), cut, _roots(Pd), _roots(zd), _roots(z)]
-    mid, live = _cuts(cut)
-    rho2 = _hv(P, mid)
-    zm = _hv(z, mid)
-    out = rho2 > (R**2)[:, None]
-    s = np.where(zm > H[:, None], 1, np.where(zm < -H[:, None], -1, 0))
-    rows = np.broadcast_to(np.arange(B)[:, None], mid.shape)
-
-    def w_of(r, sg):
-        w = sg[:, None] * z[r]
-        w[:, 0] -= H[r]
-        return w
-
-    def cross_poly(r, sg):  # inside: P - (s dz - H + R)^2
-        w = w_of(r, sg)
-        w[:, 0] += R[r]
-        return _add(P[r], -_mul(w, w))
-
-    def rim_poly(r, sg):  # rim: P (P' + 2 w w')^2 - R^2 P'^2
-        w = w_of(r, sg)
-        a = _add(Pd[r], 2.0 * _mul(w, deriv(w)))
-        return _add(_mul(P[r], _mul(a, a)), -(R[r] ** 2)[:, None] * _mul(Pd[r], Pd[r]))
-
-    ins = live & ~out & (s == 0)
-    sgn = np.broadcast_to(np.array([1, -1])[None, :, None], (B, 2, mid.shape[1]))
-    ins2 = np.broadcast_to(ins[:, None, :], sgn.shape)
-    rows2 = np.broadcast_to(np.arange(B)[:, None, None], sgn.shape)
-    _scatter(B, *_group_roots(rows2[ins2], sgn[ins2], cross_poly), parts)
-    rim = live & out & (s != 0)
-    _scatter(B, *_group_roots(rows[rim], s[rim], rim_poly), parts)
-    return np.concatenate(parts, axis=1)
 
 
 # ---------------------------------------------------------------------- bounds
@@ -397,17 +228,67 @@ def world_clearance(seg_robot, seg_t0, seg_t1, seg_coeffs, radius, world: World,
     S = r.size
     if S == 0:
         return res
-    h = t1 - t0
-    cu = to_unit(c, np.zeros(S), h)  # (S, N, L) in u
+    cu, lo, hi, scale, ends = _prepare(t0, t1, c)
+    moving = world.moving
+    if K and not moving.any():
+        _obstacles(res, r, t0, t1, c, cu, lo, hi, scale, ends, radius, world)
+    elif K:
+        fixed = np.flatnonzero(~moving)
+        if fixed.size:  # the static obstacles: as in a static world
+            part = _empty(M, fixed.size, N)
+            _obstacles(part, r, t0, t1, c, cu, lo, hi, scale, ends, radius, world.static_part())
+            res.obstacle[:, fixed], res.obstacle_t[:, fixed] = part.obstacle, part.obstacle_t
+        for k in np.flatnonzero(moving):
+            res.obstacle[:, k], res.obstacle_t[:, k] = _moving_obstacle(r, t0, t1, c, radius,
+                                                                        world, k)
+    if finite.any():
+        _faces(res, r, t0, t1, c, cu, lo, hi, scale, ends, radius, bounds, finite)
+    return res
+
+
+def _empty(M, K, N):
+    return WorldClearance(np.full((M, K), np.inf), np.full((M, K), np.nan),
+                          np.full((M, 2 * N), np.inf), np.full((M, 2 * N), np.nan),
+                          np.zeros(2 * N, bool))
+
+
+def _prepare(t0, t1, c):
+    """Pieces c (S, N, L) in t - t0 -> (cu (S, N, L) in u, the enclosing boxes lo, hi
+    (S, N) (Bernstein), the coefficient sizes (S,), the end points (S, 2, N))."""
+    cu = to_unit(c, np.zeros(c.shape[0]), t1 - t0)  # (S, N, L) in u
     bern = cu @ bernstein(cu.shape[2] - 1)
     lo, hi = bern.min(axis=-1), bern.max(axis=-1)  # enclosing box of each piece
     scale = np.abs(cu).sum(axis=(1, 2))
     ends = np.stack([c[:, :, 0], cu.sum(axis=2)], axis=1)  # (S, 2, N): x(t0), x(t1)
-    if K:
-        _obstacles(res, r, t0, t1, c, cu, lo, hi, scale, ends, radius, world)
-    if finite.any():
-        _faces(res, r, t0, t1, c, cu, lo, hi, scale, ends, radius, bounds, finite)
-    return res
+    return cu, lo, hi, scale, ends
+
+
+def _moving_obstacle(r, t0, t1, c, radius, world: World, k: int):
+    """(min clearance (M,), a time attaining it (M,)) of every robot to moving obstacle
+    k: the pieces cut at its knot times, relative to its linear motion on each cut,
+    against the obstacle at the origin (module doc)."""
+    M, N = radius.shape[0], c.shape[1]
+    kt = world.knot_t[k]
+    cuts = np.sort(np.concatenate([t0[:, None], np.clip(kt[None, :], t0[:, None], t1[:, None]),
+                                   t1[:, None]], axis=1), axis=1)  # (S, P + 2)
+    a, b = cuts[:, :-1], cuts[:, 1:]
+    keep = b > a
+    keep[:, 0] |= t1 == t0  # a piece of no length: one point
+    si, ji = np.nonzero(keep)
+    A, B = a[si, ji], b[si, ji]
+    # the motion on [A, B]: the segment that starts at or before A (no knot inside)
+    cen, vel = path_at(kt[None], world.knot_p[k][None], world.knot_v[k][None], A)
+    cen, vel = cen[:, 0], vel[:, 0]  # (n, N)
+    rel = to_unit(c[si], A - t0[si], np.ones(A.size))  # in t - A seconds
+    if rel.shape[2] < 2:
+        rel = np.concatenate([rel, np.zeros(rel.shape[:2] + (1,))], axis=2)
+    rel[:, :, 0] -= cen
+    rel[:, :, 1] -= vel
+    one = World(np.full(N, -np.inf), np.full(N, np.inf), world.kind[k:k + 1], np.zeros((1, N)),
+                world.half[k:k + 1], world.radius[k:k + 1])
+    part = _empty(M, 1, N)
+    _obstacles(part, r[si], A, B, rel, *_prepare(A, B, rel), radius, one)
+    return part.obstacle[:, 0], part.obstacle_t[:, 0]
 
 
 def _time(t0, t1, h, u):
@@ -465,13 +346,13 @@ def _obstacle_rows(ps, ks, t0, t1, c, cu, world):
                 continue
             kk = k[sel]
             if code == BOX:
-                u = _box_candidates(d[sel], world.half[kk])
+                u = box_candidates(d[sel], world.half[kk])
             elif code == CYLINDER and N == 3:
-                u = _cylinder_candidates(d[sel], world.radius[kk], world.half[kk, 2])
+                u = cylinder_candidates(d[sel], world.radius[kk], world.half[kk, 2])
             else:
                 u = stationary_candidates(d[sel])[0]
             pp = p[sel]
-            u = _compact(u)
+            u = compact(u)
             x = horner(c[pp], u * (t1 - t0)[pp][:, None])
             sd = _sd_kind(code, world.center[kk], world.half[kk], world.radius[kk], x)
             j = np.argmin(sd, axis=1)
@@ -497,7 +378,7 @@ def _faces(res, r, t0, t1, c, cu, lo, hi, scale, ends, radius, bounds, finite):
         return
     # the minimum of a polynomial coordinate: at 0, 1 or a root of its derivative
     g = cu[ps, axis[fs]]  # (B, L)
-    u = np.concatenate([np.zeros((ps.size, 1)), np.ones((ps.size, 1)), _roots(deriv(g))],
+    u = np.concatenate([np.zeros((ps.size, 1)), np.ones((ps.size, 1)), roots(deriv(g))],
                        axis=1)
     x = horner(c[ps, axis[fs]][:, None, :], u * (t1 - t0)[ps][:, None])[..., 0]
     cl = sign[fs][:, None] * (x - b[fs][:, None])

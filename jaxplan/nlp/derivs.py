@@ -35,7 +35,7 @@ from jaxplan.nlp.terms import (
 from jaxplan.nlp.types import DIST_EPS2, Multipliers
 from jaxplan.pytree import sum_all
 from jaxplan.trajectory import Trajectory
-from jaxplan.world import signed_distance_jet
+from jaxplan.world import path_at, signed_distance_jet
 
 _E_POW = np.array([0, 1, 2, 0, 1, 2])  # the power of h in each row of boundary_vector
 
@@ -346,9 +346,12 @@ def merit_shapes(zs, tau, params, structure, kind, mult: Multipliers, mu,
     if structure.static_terms:
         y = jnp.concatenate([jnp.swapaxes(p, 1, 2), jnp.broadcast_to(T, p.shape[:1] + (
             p.shape[2], 1))], axis=-1)  # (C, K, N + 1)
-        one = lambda yk, wk, lk, ok: static_local(yk, wk, lk, ok, params, structure, mu)
-        val = val + jnp.sum(jax.vmap(jax.vmap(one), in_axes=(0, None, None, None))(
-            y, w, mult.static, on), axis=1)
+        tc = None if params.static.motion is None else T * s + off  # moving rows' times
+        one = lambda yk, wk, lk, ok, tk: static_local(yk, wk, lk, ok, params, structure, mu, tk)
+        val = val + jnp.sum(jax.vmap(jax.vmap(one, in_axes=(0, 0, 0, 0, None if tc is None
+                                                             else 0)),
+                                     in_axes=(0, None, None, None, None))(
+            y, w, mult.static, on, tc), axis=1)
     if has_sampled_collision(structure):
         op = prepare_others(params.others, params.other_mask) if others is None else others
         X = p[:, :, None, :] - others_jet(op, T * s + off, 0)[0][None]  # (C, N, Mo, K)
@@ -431,13 +434,25 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
     (:func:`jaxplan.world.signed_distance_jet`) and the scalar's derivatives, as
     :func:`_chain`'s local terms (G, Hgg, HgT, GT, HTT) at the collision rows'
     positions, one group.  g_static (n_col, R): the constraints where ``with_g`` and the
-    mode has them, else ones."""
-    _, _, w, on = collision_rows(params, structure)
+    mode has them, else ones.
+
+    Rows that move (``static.motion``): at collision row k (time t_k = T s_k + off_k)
+    the row is at c(t_k) (:func:`jaxplan.world.path_at`, piecewise linear), so the gap is
+    that of q = p - c(t_k), which depends on T through u_k = dq/dT = -s_k c'(t_k)
+    (c'' = 0 between knots): with g = sd(q) - r, g_T = grad sd . u, the local terms gain
+    GT += c1 g_T, HgT += c2 g_T grad sd + c1 Hess sd u, HTT = 2 B' g_T + c2 g_T^2 +
+    c1 u . Hess sd u (c1 = T B' + A', c2 = T B'' + A'')."""
+    s, off, w, on = collision_rows(params, structure)
     (bp, C), _, _ = jets
     p = (bp[0] + jnp.sum(z[:, :, None] * C[0].T[None], axis=1)).T  # (K, N)
     st = params.static
     wt = params.weights
-    sd, dg, dH = signed_distance_jet(st.kind, st.center, st.half, st.radius, p, xp=jnp,
+    center, u = st.center, None
+    if st.motion is not None:
+        m = st.motion
+        center, vel = path_at(m.t, m.p, m.v, T * s + off, xp=jnp)  # (K, R, N)
+        u = -s[:, None, None] * vel
+    sd, dg, dH = signed_distance_jet(st.kind, center, st.half, st.radius, p, xp=jnp,
                                      kinds=structure.static_kinds)
     gap = sd - params.radius  # (K, R), as static_gap
     cons = (structure.collision_constraints and mult is not None
@@ -464,7 +479,14 @@ def _static_derivs(z, T, jets, params, structure, mult: Multipliers, mu, with_g:
                   + c1[..., None, None] * dH, axis=1)  # (K, N, N)
     Hgg = jnp.transpose(Hgg, (1, 2, 0))  # (N, N, K)
     HgT = jnp.sum(b1[..., None] * dg, axis=1).T
-    local = (G[None], Hgg[None], HgT[None], jnp.sum(bv, axis=1), jnp.zeros(p.shape[0], z.dtype))
+    GT, HTT = jnp.sum(bv, axis=1), jnp.zeros(p.shape[0], z.dtype)
+    if u is not None:  # moving rows (docstring)
+        gu = jnp.sum(dg * u, axis=-1)  # (K, R)
+        Hu = jnp.sum(dH * u[..., None, :], axis=-1)  # (K, R, N)
+        GT = GT + jnp.sum(c1 * gu, axis=1)
+        HgT = HgT + jnp.sum((c2 * gu)[..., None] * dg + c1[..., None] * Hu, axis=1).T
+        HTT = jnp.sum(2.0 * b1 * gu + c2 * gu * gu + c1 * jnp.sum(u * Hu, axis=-1), axis=1)
+    local = (G[None], Hgg[None], HgT[None], GT, HTT)
     gs = jnp.ones((structure.n_col, structure.n_static), z.dtype)
     if with_g and structure.collision_constraints:
         gs = jnp.where(st.mask[None, :] & on[:, None],

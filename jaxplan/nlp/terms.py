@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from jaxplan.nlp.basis import basis, boundary_vector, falling, kind_constants, unpack
 from jaxplan.nlp.types import DIST_EPS2, SEXP_KNEE, Limits, Multipliers, NLPParams, NLPStructure
 from jaxplan.trajectory import Trajectory
-from jaxplan.world import signed_distance
+from jaxplan.world import centres_at, signed_distance
 
 
 # ---------------------------------------------------------------------- features
@@ -159,11 +159,25 @@ def _collision_local(y, o, w, lam, params, structure, mu, on=True):
     return val
 
 
-def static_gap(p, params):
+def static_gap(p, params, t=None):
     """Clearance sd(p) - r (m) of the robot at p (N,) to each static row (R,)
-    (:func:`jaxplan.world.signed_distance`; masked rows included)."""
+    (:func:`jaxplan.world.signed_distance`; masked rows included), each row where it
+    is at time t (s after the replan; None: ``center``, where it is at 0).  Rows that
+    move (``static.motion``, :func:`jaxplan.world.rows_at`) are then at their predicted
+    centres (:func:`jaxplan.world.path_at`); the signed distance is that of p - c(t) to
+    the row at the origin."""
     st = params.static
-    return signed_distance(st.kind, st.center, st.half, st.radius, p, xp=jnp) - params.radius
+    center = st.center if st.motion is None or t is None else centres_at(st, t)
+    return signed_distance(st.kind, center, st.half, st.radius, p, xp=jnp) - params.radius
+
+
+def static_times(yc, params, structure):
+    """The collision rows' times T s_k + off_k (n_col,), s, where the static rows move
+    (``static.motion``), else None (static rows sit still: no time needed)."""
+    if params.static is None or params.static.motion is None:
+        return None
+    s, off, _, _ = collision_rows(params, structure)
+    return yc[:, -1] * s + off
 
 
 # How much a metre inside an obstacle's (or a workspace face's) planning distance weighs
@@ -213,14 +227,14 @@ def static_allowance(params):
     return jnp.minimum(static_gap(params.p0, params), 0.0)
 
 
-def static_local(y, w, lam, on, params, structure, mu):
+def static_local(y, w, lam, on, params, structure, mu, t=None):
     """Static-row terms at one collision row: y = (p (N), T); barrier q_obs T w
     sum exp(-k_p (sd - r)); AL terms of g = s (sd - r - a) >= 0 (m^2 like d^2 - rho^2;
     s = :func:`static_scale`, a = :func:`static_allowance`) where the row's constraint
-    is ``on``."""
+    is ``on``; t: the row's time (moving rows, :func:`static_gap`)."""
     N = structure.n_dim
     p, T = y[:N], y[-1]
-    gap = static_gap(p, params)
+    gap = static_gap(p, params, t)
     mask = params.static.mask
     wt = params.weights
     val = 0.0
@@ -235,9 +249,15 @@ def static_local(y, w, lam, on, params, structure, mu):
 def static_constraints(yc, on, params, structure):
     """g (n_col, R) of the static rows at the collision rows' positions yc (n_col, >= N):
     s (sd - r - a) (s: :func:`static_scale`, a: :func:`static_allowance`), +1 where
-    masked or the row is off."""
+    masked or the row is off; moving rows at the collision rows' times
+    (:func:`static_times`)."""
     N = structure.n_dim
-    gap = jax.vmap(lambda y: static_gap(y[:N], params))(yc) - static_allowance(params)
+    tc = static_times(yc, params, structure)
+    if tc is None:
+        gap = jax.vmap(lambda y: static_gap(y[:N], params))(yc)
+    else:
+        gap = jax.vmap(lambda y, t: static_gap(y[:N], params, t))(yc, tc)
+    gap = gap - static_allowance(params)
     return jnp.where(params.static.mask[None, :] & on[:, None], static_scale(params) * gap, 1.0)
 
 
@@ -329,9 +349,11 @@ def evaluate_terms(x, params, structure, kind, mult: Multipliers | None, mu, wit
         s, off, w, on = collision_rows(params, structure)
     if structure.static_terms:
         lam_s = mult.static if mult is not None else None
+        tc = static_times(yc, params, structure)
         val = val + jnp.sum(jax.vmap(
-            lambda y, wk, lk, ok: static_local(y, wk, lk, ok, params, structure, mu),
-            in_axes=(0, 0, None if lam_s is None else 0, 0))(yc, w, lam_s, on))
+            lambda y, wk, lk, ok, tk: static_local(y, wk, lk, ok, params, structure, mu, tk),
+            in_axes=(0, 0, None if lam_s is None else 0, 0, None if tc is None else 0))(
+                yc, w, lam_s, on, tc))
         if with_g and structure.collision_constraints:
             gs = static_constraints(yc, on, params, structure)
     if has_sampled_collision(structure):

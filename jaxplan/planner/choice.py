@@ -37,7 +37,7 @@ from jaxplan.planner.types import Fallback, FleetParams, FleetState, PlannerStru
 from jaxplan.predict import quintic_terms
 from jaxplan.pytree import tree_where
 from jaxplan.trajectory import Trajectory, _falling, compose_matrix
-from jaxplan.world import StaticRows, signed_distance
+from jaxplan.world import StaticRows, centres_at, signed_distance
 
 CHECK_HORIZON_S = 1.5  # s: fallback plans are compared over this long (plan_violation)
 CHECK_SAMPLES = 32  # instants in (0, CHECK_HORIZON_S] (47 ms apart: 9 cm at 2 m/s)
@@ -133,7 +133,9 @@ def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, 
     P = :data:`jaxplan.nlp.terms.STATIC_PRIORITY`: a plan into an obstacle is worse than
     one as deep into a robot's planning distance, which that robot avoids too), 0 when
     clear.  plans: (M,) trajectories starting now (holding or coasting after their
-    end); others: (M, Mo) predictions; radius (M,); other_radius, mask (M, Mo)."""
+    end); others: (M, Mo) predictions; radius (M,); other_radius, mask (M, Mo).  Moving
+    rows (``static.motion``, relative to now) are where their prediction puts them at
+    each instant."""
     t = jnp.arange(1, CHECK_SAMPLES + 1) * (CHECK_HORIZON_S / CHECK_SAMPLES)
     me = plans.evaluate(t[:, None])  # (K, M, N)
     ot = others.evaluate(t[:, None, None])  # (K, M, Mo, N)
@@ -142,7 +144,8 @@ def plan_violation(plans: Trajectory, others: Trajectory, radius, other_radius, 
     pen = jnp.where(mask[None] & jnp.isfinite(d), rho[None] - d, 0.0)
     worst = jnp.maximum(jnp.max(pen, axis=(0, 2)), 0.0)
     if static is not None:
-        sd = signed_distance(static.kind, static.center, static.half, static.radius, me,
+        center = static.center if static.motion is None else centres_at(static, t)[:, None]
+        sd = signed_distance(static.kind, center, static.half, static.radius, me,
                              xp=jnp)  # (K, M, R)
         pen_s = jnp.where(static.mask & jnp.isfinite(sd), radius[None, :, None] - sd, 0.0)
         worst = jnp.maximum(worst, STATIC_PRIORITY * jnp.max(pen_s, axis=(0, 2), initial=0.0))

@@ -71,7 +71,10 @@ def guided_goals(fp: FleetParams, fleet: FleetState, goals: Goals, stalls: Stall
     goals."""
     if goals.guide is None or fp.static is None:
         return goals
-    point, use = guide_goals(*goals.guide, fp.static, fp.radius, fleet.p, goals.goal_p)
+    static = fp.static
+    if static.motion is not None:  # the guide goes round the static world only
+        static = static._replace(mask=static.mask & ~static.motion.moving)
+    point, use = guide_goals(*goals.guide, static, fp.radius, fleet.p, goals.goal_p)
     use = use & ~stalls.sidestep & fp.robot_mask
     return goals._replace(goal_p=jnp.where(use[:, None], point, goals.goal_p),
                           goal_v=jnp.where(use[:, None], 0.0, goals.goal_v),

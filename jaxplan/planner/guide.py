@@ -60,10 +60,11 @@ GUIDE_EVERY = 4  # candidate guide points: every 4th step (1, 2, 3, 4 m down the
 
 
 def guide_enabled(mode: str, world: World) -> bool:
-    """Whether a run builds and uses the guide: "on", or "auto" with obstacles."""
+    """Whether a run builds and uses the guide: "on", or "auto" with static obstacles
+    (the guide goes round the static world; moving obstacles are the NLP's)."""
     if mode not in GUIDE_MODES:
         raise ValueError(f"guide must be one of {GUIDE_MODES}, got {mode!r}")
-    return mode == "on" or (mode == "auto" and world.num_obstacles > 0)
+    return mode == "on" or (mode == "auto" and bool(np.any(~world.moving)))
 
 
 def grid_box(world: World, points) -> tuple[np.ndarray, np.ndarray]:
@@ -116,7 +117,7 @@ def guide_field(world: World, waypoints, radius, starts=None) -> GuideField:
     lo = 0.5 * (lo + hi) - 0.5 * spacing * n1
     axes = [lo[i] + spacing[i] * np.arange(shape[i]) for i in range(N)]
     nodes = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, N)
-    rows = static_rows(world)
+    rows = static_rows(world.static_part())  # the moving obstacles are not in the way
     if rows.mask.shape[0]:
         sd = signed_distance(rows.kind, rows.center, rows.half, rows.radius, nodes).min(-1)
     else:

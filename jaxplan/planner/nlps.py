@@ -23,7 +23,7 @@ from jaxplan.nlp.terms import LIMIT_PRIORITY, LIMIT_PRIORITY_CALM
 from jaxplan.planner.types import FleetParams, FleetState, Goals, PlannerStructure, PlanState
 from jaxplan.planner.views import Predictions, sender_mask
 from jaxplan.trajectory import Trajectory
-from jaxplan.world import StaticRows, signed_distance
+from jaxplan.world import StaticRows, centres_at, signed_distance
 
 NEIGHBOR_HORIZON_S = (1.0, 10.0)  # s: the window nearest_neighbors looks over (clipped)
 NEIGHBOR_SAMPLES = 16
@@ -103,7 +103,11 @@ def nlp_static_rows(fp: FleetParams, ps: PlanState, p, structure: PlannerStructu
                          f"{structure.static_slots(R)} of the world's {R}")
     if Ks < R:
         pts = p if goal_p is None else heading_points(ps, p, goal_p, fp.dt)
-        static, sidx = select_static(fp.static, pts, fp.radius, Ks)
+        times = None  # moving rows: where they will be when the robot gets there
+        if fp.static.motion is not None:
+            times = (jnp.zeros(p.shape[:1]) if goal_p is None else
+                     heading_times(ps, p, goal_p, fp.dt, fp.limits.v_max))
+        static, sidx = select_static(fp.static, pts, fp.radius, Ks, times)
         return static, sidx, remap_slots(lam, ps.static_ids, sidx)
     # every row, in a fixed order (the multipliers stay in their slots)
     static = jax.tree.map(lambda a: jnp.broadcast_to(a, (M,) + a.shape), fp.static)
@@ -172,16 +176,16 @@ def nearest_neighbors(preds: Trajectory, other_radius, mask, K: int):
     return idx.astype(jnp.int32)
 
 
-def select_static(static: StaticRows, p, radius, K: int):
+def select_static(static: StaticRows, p, radius, K: int, t=None):
     """Keep each robot's K nearest static rows (:func:`nearest_static_rows`, p (M, N) or
-    (M, S, N) as there): the rows as StaticRows with leaves (M, K, ...), and their
+    (M, S, N) and t as there): the rows as StaticRows with leaves (M, K, ...), and their
     indices (M, K)."""
-    idx = nearest_static_rows(static, p, radius, K)
+    idx = nearest_static_rows(static, p, radius, K, t)
     rows = jax.tree.map(lambda a: jnp.broadcast_to(a, (idx.shape[0],) + a.shape), static)
     return take_slots(rows, idx), idx
 
 
-def nearest_static_rows(static: StaticRows, p, radius, K: int):
+def nearest_static_rows(static: StaticRows, p, radius, K: int, t=None):
     """For each robot, the K static rows nearest to it: (M, K) int32 indices, nearest
     first; masked or non-finite rows come last.
 
@@ -194,14 +198,23 @@ def nearest_static_rows(static: StaticRows, p, radius, K: int):
     ahead of one as near to where it is but off its way (docs/SOLVER.md, "Which rows an
     NLP holds").
 
+    Moving rows (``static.motion``, relative to now) count where they will be at the
+    points' times t (M,) or (M, S) s (:func:`heading_times`; None: where they are now).
+
     Args: static: StaticRows (R rows).  p: (M, N) or (M, S, N) m.  radius: (M,) m.
     K: static, 1 <= K <= R.
     """
     if p.ndim == 2:
         p = p[:, None, :]
+        t = None if t is None else t[:, None]
     M, S, N = p.shape
-    gap = signed_distance(static.kind, static.center, static.half, static.radius,
-                          p.reshape(M * S, N), xp=jnp).reshape(M, S, -1) - radius[:, None, None]
+    if static.motion is None or t is None:
+        gap = signed_distance(static.kind, static.center, static.half, static.radius,
+                              p.reshape(M * S, N), xp=jnp).reshape(M, S, -1)
+    else:
+        gap = signed_distance(static.kind, centres_at(static, t), static.half, static.radius,
+                              p, xp=jnp)
+    gap = gap - radius[:, None, None]
     key = jnp.where(jnp.isfinite(gap), gap, jnp.inf).min(axis=1)
     key = jnp.where(static.mask, key, jnp.inf)
     _, idx = jax.lax.top_k(-key, K)
@@ -221,3 +234,16 @@ def heading_points(ps: PlanState, p, goal_p, dt, samples: int = STATIC_PATH_SAMP
     g = jnp.where(jnp.isfinite(goal_p), goal_p, p)
     on_line = p[:, None, :] + frac[None, :, None] * (g - p)[:, None, :]
     return jnp.concatenate([p[:, None], on_plan, on_line], axis=1)
+
+
+def heading_times(ps: PlanState, p, goal_p, dt, v_max, samples: int = STATIC_PATH_SAMPLES):
+    """When each robot is at :func:`heading_points`' points, s from now: 0, the previous
+    plan's sample times, and the line's points at v_max (M,).  Returns (M, 1 + 2 samples)."""
+    frac = jnp.linspace(0.0, 1.0, samples + 1)[1:]
+    prev = ps.plan.shift(dt)
+    T = jnp.where(jnp.isfinite(prev.duration), prev.duration, 0.0)
+    g = jnp.where(jnp.isfinite(goal_p), goal_p, p)
+    line = jnp.linalg.norm(g - p, axis=-1) / v_max
+    M = p.shape[0]
+    return jnp.concatenate([jnp.zeros((M, 1)), T[:, None] * frac[None, :],
+                            line[:, None] * frac[None, :]], axis=1)

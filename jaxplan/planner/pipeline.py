@@ -28,10 +28,11 @@ from jaxplan.planner.types import (
 )
 from jaxplan.planner.views import view_predictions
 from jaxplan.trajectory import Trajectory
+from jaxplan.world import rows_at
 
 
 def replan(fp: FleetParams, ps: PlanState, fleet: FleetState, goals: Goals,
-           structure: PlannerStructure) -> tuple[PlanState, ReplanInfo]:
+           structure: PlannerStructure, t=None) -> tuple[PlanState, ReplanInfo]:
     """One receding-horizon replan of the whole fleet.
 
     Args:
@@ -39,10 +40,17 @@ def replan(fp: FleetParams, ps: PlanState, fleet: FleetState, goals: Goals,
         previous replan time, i.e. ``fp.dt`` ago).  fleet: each robot's own state now,
         (M, N) each, and what it knows of the others (``fleet.views``).  goals: its
         current goals, (M, N), (M, N), (M,), and the guide field to them (or None).
-        structure: static PlannerStructure.
+        structure: static PlannerStructure.  t: () s, the time now (traced): where the
+        world's moving obstacles are and what the robots predict of them
+        (:func:`jaxplan.world.rows_at`); needed only where ``fp.static`` moves.
     Returns:
         (new PlanState with every plan starting now, ReplanInfo).
     """
+    # 0. the moving obstacles where they are now, their predictions from now on
+    if fp.static is not None and fp.static.motion is not None:
+        if t is None:
+            raise ValueError("replan: a world with moving obstacles needs the time t")
+        fp = fp._replace(static=rows_at(fp.static, t))
     # 1. views.py: each robot's predictions of the others, from its views
     preds = view_predictions(fp, fleet.views, structure.prediction)
     # 2. stall.py: who is stalled, who sidesteps

@@ -163,7 +163,7 @@ def _plot_clearance(data: RunData, out: Path) -> Path:
     """clearance.png: each robot's clearance (signed distance - radius, min over the
     obstacles; beside it, min over the finite workspace faces) over time, the line at 0,
     the worst instant marked (:func:`jaxplan.plots.scene.clearances`)."""
-    obs, ws = clearances(data.world, data.pos, data.radius)
+    obs, ws = clearances(data.world, data.pos, data.radius, data.t)
     panels = [(c, what) for c, what in ((obs, "obstacle"), (ws, "workspace"))
               if c.shape[-1]]
     with matplotlib.rc_context(STYLE):

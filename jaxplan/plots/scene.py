@@ -176,11 +176,12 @@ def draw_world_2d(ax, world: World | None, lim) -> None:
 # --------------------------------------------------------------------------- clearance
 
 
-def clearances(world: World | None, pos, radius):
+def clearances(world: World | None, pos, radius, t=None):
     """Sampled clearances of a run (module docstring).
 
     Args:
-        world: the run's World (or None).  pos: (M, K, N) m.  radius: (M,) m.
+        world: the run's World (or None).  pos: (M, K, N) m.  radius: (M,) m.  t: (K,)
+        s, the samples' times: a moving obstacle where it is then (None: at t = 0).
     Returns:
         (obstacle (M, K, n_obstacles), workspace (M, K, n_faces)) m: each robot's
         clearance to each obstacle / finite face at each sample (n = 0: empty).
@@ -190,9 +191,13 @@ def clearances(world: World | None, pos, radius):
     if world is None:
         return np.zeros((m, k, 0)), np.zeros((m, k, 0))
     rows = static_rows(world)
+    center = rows.center
+    if t is not None and world.has_motion:  # (K, R, N): the obstacles where they are then
+        center = np.broadcast_to(center, (k,) + center.shape).copy()
+        center[:, :world.num_obstacles] = world.center_at(np.asarray(t, np.float64))[0]
     out = np.empty((m, k, rows.kind.shape[0]))
     for i in range(m):  # one robot at a time bounds the memory: (K, R, N)
-        out[i] = signed_distance(rows.kind, rows.center, rows.half, rows.radius,
+        out[i] = signed_distance(rows.kind, center, rows.half, rows.radius,
                                  pos[i]) - radius[i]
     n = world.num_obstacles
     return out[..., :n], out[..., n:]

@@ -33,10 +33,12 @@ from jaxplan.scenarios.params import GeneratorParams
 from jaxplan.scenarios.scenario import Scenario, ScenarioError
 from jaxplan.scenarios.traffic import IntruderParams, intruder
 from jaxplan.scenarios.worlds import (
+    CrossingTrafficParams,
     LowCeilingParams,
     PillarsParams,
     RandomObstaclesParams,
     WallGapParams,
+    crossing_traffic,
     low_ceiling,
     pillars,
     random_obstacles,
@@ -70,14 +72,14 @@ PAPER_SCENARIOS: dict[str, Callable[..., Scenario]] = {
 GENERATOR_PARAMS: dict[str, type[GeneratorParams]] = {
     p.kind: p for p in (AntipodalSphereParams, RandomBoxParams, GridSwapParams, StackedParams,
                         AntipodalCircleParams, PillarsParams, WallGapParams, LowCeilingParams,
-                        RandomObstaclesParams, IntruderParams)
+                        RandomObstaclesParams, CrossingTrafficParams, IntruderParams)
 }
 # each generator declared its model (jaxplan.scenarios.params.generates)
 GENERATORS: dict[str, Callable[..., Scenario]] = {
     kind: p.generator for kind, p in GENERATOR_PARAMS.items()}
 AnyGeneratorParams = (AntipodalSphereParams | RandomBoxParams | GridSwapParams | StackedParams
                       | AntipodalCircleParams | PillarsParams | WallGapParams | LowCeilingParams
-                      | RandomObstaclesParams | IntruderParams)
+                      | RandomObstaclesParams | CrossingTrafficParams | IntruderParams)
 
 _MIXED = ("firefly", "neo11")
 
@@ -125,6 +127,9 @@ SCENARIOS: dict[str, ScenarioSpec] = {
     "random_obstacles": ScenarioSpec(
         "random_obstacles", "random starts and goals among random obstacles "
         "(default 12 robots, 15 obstacles)", random_obstacles),
+    "crossing_traffic": ScenarioSpec(
+        "crossing_traffic", "8 robots fly along a corridor that 6 people (moving cylinders) "
+        "cross at up to 1 m/s", crossing_traffic),
     "intruder": ScenarioSpec(
         "intruder", "a non-cooperative drone crosses a swarm of 10 mid-swap", intruder),
 }

@@ -384,7 +384,7 @@ def scenario_problems(sc: Scenario, max_problems: int = 10,
     for i in range(M):
         pts = [(None, sc.start[i])] + [(w, sc.waypoints[i, w]) for w in range(sc.num_waypoints)]
         for w, p in pts:
-            probs = point_problems(sc.world, p, sc.radius[i])
+            probs = point_problems(sc.world, p, sc.radius[i], start=w is None)
             if probs:
                 where = "start" if w is None else f"goal (waypoint {w})"
                 out.append(_world_problem(sc, i, w, where, p, *probs[0], lab))

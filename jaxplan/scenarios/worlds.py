@@ -27,6 +27,20 @@ jaxplan/scenarios/generators.py.  3-D, on the ground (z >= 0); deterministic for
     robot's radius plus ``clearance``, each goal at least half the arena's side from
     its start.  The workspace is the arena (walls at its sides, a ceiling at
     ``height``).
+``crossing_traffic``
+    ``count`` robots (default 8) fly along a corridor ``length`` m long (14 m, x from
+    -length / 2 to length / 2), ``width`` m wide (4 m) and ``height`` m high (2.5 m: the
+    workspace, its walls, floor and ceiling faces) from one end to the other (starts on
+    a 2 x (count / 2) grid in the y-z plane 1 m from the x_min end, goals mirrored 1 m
+    from the x_max end, seeded jitter), while ``people`` (6) person-sized vertical
+    cylinders (``person_radius`` 0.3 m, ``person_height`` 1.8 m, standing on the floor,
+    so no robot passes over one under the ceiling) cross it: each waits just outside a
+    side wall at a seeded x in the middle of the corridor, starts at a seeded time in
+    [0, ``start_window``] s (6 s) and walks straight across at a seeded speed in
+    [``speed_min``, ``speed_max``] m/s (0.5 to 1: up to v_max / 2), then waits outside
+    the other wall (a path of two timed points: jaxplan/world.py, "Motion");
+    ``known_path``: whether the robots know the people's paths (default false: their
+    position and velocity at each replan).
 """
 
 from __future__ import annotations
@@ -34,10 +48,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import numpy as np
-from pydantic import ConfigDict
+from pydantic import ConfigDict, Strict
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from jaxplan.fields import (
@@ -71,6 +85,8 @@ Fraction = number(gt=0.0, lt=1.0)
 Density = number(ge=1e-3, lt=1.0)
 # m between pillar rows: a smaller spacing would place more than ~10^4 pillars
 PillarSpacing = number(ge=0.1, le=1e3)
+Speed = number(ge=0.01, le=100.0)  # m/s of a walking obstacle
+Window = number(ge=0.0, le=1e3)  # s
 
 
 def _world(lo, hi, obstacles) -> World:
@@ -310,3 +326,72 @@ def random_obstacles(count: int = 12, obstacles: int = 15, seed: int = 0, *,
         goal.append(draw(goal, start[i]))
     return make_scenario("random_obstacles", names, np.array(start), np.array(goal), **ends,
                          world=world, validate=validate)
+
+
+# ---------------------------------------------------------------------- crossing_traffic
+@pydantic_dataclass(frozen=True, config=_PARAMS_CONFIG)
+class CrossingTrafficParams(GeneratorParams):
+    """``kind = "crossing_traffic"`` (:func:`crossing_traffic`)."""
+
+    kind: ClassVar[str] = "crossing_traffic"
+    count: Count = 8
+    dim: ThreeD = None
+    length: PositiveLength = 14.0
+    width: PositiveLength = 4.0
+    height: PositiveLength = 2.5
+    people: ObstacleCount = 6
+    person_radius: PositiveLength = 0.3
+    person_height: PositiveLength = 1.8
+    speed_min: Speed = 0.5
+    speed_max: Speed = 1.0
+    start_window: Window = 6.0
+    known_path: Annotated[bool, Strict()] = False
+    jitter: NonNegativeLength = 0.05
+    vehicles: VehicleNames = ("firefly",)
+    end_state: EndState = None
+
+
+@generates(CrossingTrafficParams)
+def crossing_traffic(count: int = 8, seed: int = 0, *, length: float = 14.0,
+                     width: float = 4.0, height: float = 2.5, people: int = 6,
+                     person_radius: float = 0.3, person_height: float = 1.8,
+                     speed_min: float = 0.5, speed_max: float = 1.0,
+                     start_window: float = 6.0, known_path: bool = False,
+                     jitter: float = 0.05, vehicles: Sequence[str] = ("firefly",),
+                     end_state: str = "free", validate: bool = True) -> Scenario:
+    """Robots fly along a corridor that people cross (module doc)."""
+    count = _check_count(count)
+    seed = check_seed(seed)
+    ends = _end_flags(end_state)
+    length = _check_pos(length, "length")
+    width = _check_pos(width, "width")
+    height = _check_pos(height, "height")
+    if speed_max < speed_min:
+        raise ScenarioError(f"speed_max: {speed_max} m/s is below speed_min = {speed_min} m/s",
+                            key="speed_max")
+    rng = np.random.default_rng(seed)
+    names = cycle_vehicles(vehicles, count)
+    # the robots: two rows (heights) of ceil(count / 2) across the corridor
+    cols = math.ceil(count / 2)
+    j = np.arange(count)
+    y = ((j % cols) - (cols - 1) / 2) * (width / cols)
+    z = np.where(j < cols, 0.32, 0.68) * height
+    x0 = -length / 2 + min(1.0, length / 4)
+    start = np.stack([np.full(count, x0), y, z], 1) + _jitter(rng, count, jitter)
+    goal = np.stack([np.full(count, -x0), y, z], 1) + _jitter(rng, count, jitter)
+    # the people: from just outside one side wall straight across to the other
+    off = width / 2 + person_radius + 0.05
+    xs = rng.uniform(-0.35, 0.35, people) * length
+    side = rng.choice([-1.0, 1.0], people)
+    t0 = rng.uniform(0.0, start_window, people)
+    speed = rng.uniform(speed_min, speed_max, people)
+    zc = person_height / 2
+    obstacles = [dict(kind="cylinder", radius=person_radius, half_height=zc,
+                      known_path=known_path,
+                      path=[{"t": float(t0[k]), "p": [float(xs[k]), float(side[k] * off), zc]},
+                            {"t": float(t0[k] + 2 * off / speed[k]),
+                             "p": [float(xs[k]), float(-side[k] * off), zc]}])
+                 for k in range(people)]
+    world = _world([-length / 2, -width / 2, 0.0], [length / 2, width / 2, height], obstacles)
+    return make_scenario("crossing_traffic", names, start, goal, **ends, world=world,
+                         validate=validate)

@@ -77,7 +77,8 @@ def mjx_step(fp: FleetParams, task: Task, st: RolloutState, sim_state: sf.SimSta
     goals = own_goals(task, t, fp.dt, current_goals(task, st.wp, st.reached, p, fp.limits))
     # the others are seen as measured
     views = fresh_views(pm, vm, am, *publish(task, t, fp.dt, st.plans, goals))
-    plans, info = replan(fp, st.plans, FleetState(p, v, a, views), goals, structure.planner)
+    plans, info = replan(fp, st.plans, FleetState(p, v, a, views), goals, structure.planner,
+                         t)
     plans = own_plans(task, t, fp.dt, plans)
     new_sim, prec = sf.simulate_period(sim, sim_state, plans.plan, 0.0, period_s)
     t1 = sf.sim_time(sim, new_sim)

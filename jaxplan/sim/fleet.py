@@ -94,7 +94,7 @@ from jaxplan.sim import import_mjx, se3
 from jaxplan.sim import model as sim_model_lib
 from jaxplan.trajectory import Trajectory
 from jaxplan.vehicles import get_vehicle
-from jaxplan.world import StaticRows, World, signed_distance, static_rows
+from jaxplan.world import StaticRows, World, rows_as_jax, signed_distance, static_rows
 
 mjx = import_mjx()
 
@@ -327,7 +327,7 @@ def sim_world(world: World) -> StaticRows:
     """The rows of a 3-D world that the simulation measures (``SimModel.world``)."""
     if world.dim != 3:
         raise ValueError(f"the simulated world must be 3-D, got {world.dim}-D")
-    return StaticRows(*(jnp.asarray(x) for x in static_rows(world)))
+    return rows_as_jax(static_rows(world))
 
 
 @jax.jit

@@ -125,6 +125,13 @@ def sanitize(params: NLPParams) -> tuple[NLPParams, jax.Array]:
         st = params.static
         fin = (jnp.all(jnp.isfinite(st.center), -1) & jnp.all(jnp.isfinite(st.half), -1)
                & jnp.isfinite(st.radius))
+        motion = st.motion
+        if motion is not None:  # a row whose motion is not finite is ignored too
+            fin = (fin & jnp.all(jnp.isfinite(motion.t), -1)
+                   & jnp.all(jnp.isfinite(motion.p), (-1, -2))
+                   & jnp.all(jnp.isfinite(motion.v), -1))
+            motion = motion._replace(t=fz(motion.t), p=fz(motion.p), v=fz(motion.v))
         params = params._replace(static=st._replace(
-            mask=st.mask & fin, center=fz(st.center), half=fz(st.half), radius=fz(st.radius)))
+            mask=st.mask & fin, center=fz(st.center), half=fz(st.half), radius=fz(st.radius),
+            motion=motion))
     return params, ok

@@ -143,12 +143,14 @@ def pad_robots(fp, task: Task, m_pad: int):
 
 
 def _prepare(config: Config, point: SweepPoint, scenario: Scenario, m_pad: int,
-             r_pad: int, own: bool = False) -> _Prepared:
+             r_pad: int, own: bool = False, knots: int | None = None) -> _Prepared:
     """A point's fleet parameters and task, as numpy, padded to m_pad robots and r_pad
-    static rows (masked rows add exact zeros: the results do not depend on r_pad);
-    ``own``: the task carries the non-cooperative robots' paths (every run of a grid
-    that has one: :func:`_has_own`)."""
-    fp = fleet_params(config, scenario, _weights(config, point.q_obs, point.q_lim), r_pad)
+    static rows (masked rows add exact zeros: the results do not depend on r_pad), the
+    rows' motion to ``knots`` knots where the grid has moving obstacles
+    (:func:`grid_knots`; rows at rest add exact zeros); ``own``: the task carries the
+    non-cooperative robots' paths (every run of a grid that has one: :func:`_has_own`)."""
+    fp = fleet_params(config, scenario, _weights(config, point.q_obs, point.q_lim), r_pad,
+                      knots)
     fp, task = pad_robots(jax.tree.map(np.asarray, fp),
                           jax.tree.map(np.asarray, task_of(config, scenario, own)), m_pad)
     return _Prepared(point, scenario, fp, task)
@@ -171,6 +173,14 @@ def structure_for(config: Config, n_dim: int, n_static: int | None = None,
     st = structures(config, only_needed=False, n_static=n_static, static_kinds=kinds)
     nlp = dataclasses.replace(st.planner.nlp, n_dim=n_dim)
     return dataclasses.replace(st, planner=dataclasses.replace(st.planner, nlp=nlp))
+
+
+def grid_knots(scenarios) -> int | None:
+    """The most knots of the grid's moving obstacles' motions (every world's rows then
+    carry a motion of that many knots: one tree for every batch), None where none
+    moves."""
+    P = [s.world.num_knots for s in scenarios if s.world.has_motion]
+    return max(P) if P else None
 
 
 def grid_kinds(scenarios, n_dim: int) -> tuple[int, ...]:
@@ -408,7 +418,8 @@ class BatchRunner:
             raise ValueError(f"a batch holds 1 to {batch} points, got {len(points)}")
         configs = self._configs(points, weights, built)
         r_pad = self._r_pad(points, built, r_pad)
-        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built))
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built),
+                          grid_knots(built.values()))
                  for c, p in zip(configs, points, strict=True)]
         full = preps + [preps[-1]] * (batch - len(preps))
         fpb = stack_trees([c.fp for c in full])
@@ -468,7 +479,7 @@ class BatchRunner:
         config = self._configs([point], None if weights is None else [weights], built)[0]
         r_pad = self._r_pad([point], built, r_pad)
         prep = _prepare(config, point, built[(point.scenario, point.seed)], m_pad, r_pad,
-                        _has_own(built))
+                        _has_own(built), grid_knots(built.values()))
         compiled = self._one_run_program(prep, built, r_pad, device)
         (reached, reach_time), records = compiled(*jax.device_put(
             self._one_run_inputs(prep), device))
@@ -523,7 +534,8 @@ class BatchRunner:
         through it (a call runs in its caller's thread, without the GIL: the runs go
         side by side on the cores; one executable, so the same operations for all)."""
         configs = self._configs(points, weights, built)
-        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built))
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built),
+                          grid_knots(built.values()))
                  for c, p in zip(configs, points, strict=True)]
         device = jax.devices("cpu")[0]
         self._one_run_program(preps[0], built, r_pad, device)
