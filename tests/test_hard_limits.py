@@ -17,6 +17,7 @@ from jaxplan.config import ConfigError, parse_config
 from jaxplan.nlp import Limits, NLPStructure
 from jaxplan.planner import PlannerStructure
 from jaxplan.planner.choice import BRAKE_GROWTH, LIMIT_TOL, limit_ratio
+from jaxplan.planner.types import Fallback
 from jaxplan.trajectory import Trajectory
 
 
@@ -82,6 +83,32 @@ def test_the_braking_plan_keeps_to_the_limits():
                                             jnp.asarray(T / BRAKE_GROWTH))
     over = np.asarray(limit_ratio(shorter, lim)) > 1.0 + LIMIT_TOL
     assert np.all(over | first) and not np.all(first)
+
+
+def test_a_brake_beyond_the_limits_flies_only_when_nothing_else_may():
+    """Near v_max and still accelerating along the motion, a jerk-limited vehicle cannot
+    stop accelerating before it passes v_max (a^2 / (2 j) more): no braking plan keeps
+    to the limits (planar box 20 seed 6 flew one at 1.04 v_max, chosen as less violating
+    than the previous plan, which was within them).  Such a brake yields to any other
+    available plan, however violating, and flies only when there is none."""
+    from jaxplan.planner import pick_fallback
+
+    structure = PlannerStructure(nlp=NLPStructure(n_dim=2, degree=5, segments=2))
+    lim = Limits(jnp.full(1, 2.0), jnp.full(1, 4.0), jnp.full(1, 12.0))
+    brake = jax.jit(planner.limited_braking_plan, static_argnames="structure")(
+        jnp.zeros((1, 2)), jnp.asarray([[1.995, 0.0]]), jnp.asarray([[3.0, 0.0]]), lim,
+        structure=structure)
+    assert float(limit_ratio(brake, lim)[0]) > 1.0 + LIMIT_TOL
+    assert _dense_ratio(Trajectory(*jax.device_get(brake)), lim)[0] > 1.03
+    inf, no, yes = np.inf, jnp.asarray([False] * 4), jnp.asarray([True] * 4)
+    v_sol = jnp.asarray([0.5, inf, inf, 0.1])
+    v_prev = jnp.asarray([inf, 0.4, inf, 0.3])
+    v_brake = jnp.asarray([0.0, 0.0, 0.0, 0.2])
+    np.testing.assert_array_equal(pick_fallback(v_sol, v_prev, v_brake, brake_ok=no),
+                                  [Fallback.BEST_EFFORT, Fallback.KEPT_PREVIOUS, Fallback.BRAKING,
+                                   Fallback.BEST_EFFORT])
+    np.testing.assert_array_equal(pick_fallback(v_sol, v_prev, v_brake, brake_ok=yes),
+                                  [Fallback.BRAKING] * 3 + [Fallback.BEST_EFFORT])
 
 
 PLANAR = """

@@ -10,7 +10,9 @@ itself if it is finite and meets its equalities (BEST_EFFORT: typically INFEASIB
 because it starts inside another robot's planning radius, or another's prediction
 crosses its start; the solve minimized the violation against the newest predictions),
 its previous plan shifted to now while that has not run out (KEPT_PREVIOUS), a braking
-plan that brings it to rest (BRAKING, :func:`braking_plan`): so a finite best-effort
+plan that brings it to rest (BRAKING, :func:`braking_plan`; under hard limits one that
+breaks them, from a state near v_max still accelerating, only when neither other plan
+may fly): so a finite best-effort
 solve through a robot is not flown when a fallback violates less (:class:`Fallback`,
 counted in ``ReplanInfo.fallback``).  No NaN leaves this stage.
 
@@ -44,6 +46,9 @@ CHECK_SAMPLES = 32  # instants in (0, CHECK_HORIZON_S] (47 ms apart: 9 cm at 2 m
 LIMIT_TOL = 1e-3  # hard limits: a plan is within them up to this relative excess
 BRAKE_GROWTH = 1.25  # hard limits: the braking durations tried, T_b * BRAKE_GROWTH^k
 BRAKE_CANDIDATES = 16
+# hard limits: added to the violation of a braking plan beyond the limits (m), so that it
+# flies only where neither the best effort nor the previous plan may (pick_fallback)
+BRAKE_BEYOND = 1e3
 
 
 class Choice(NamedTuple):
@@ -87,8 +92,11 @@ def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol: solve.S
         accepted = accepted & within
         usable = usable & within
         prev_ok = prev_ok & (limit_ratio(prev, true_limits) <= 1.0 + LIMIT_TOL)
+        # from a state near v_max still accelerating, no braking plan keeps to them
+        brake_ok = limit_ratio(brake, true_limits) <= 1.0 + LIMIT_TOL
     else:
         brake = braking_plan(p, v, a, params.limits.a_max, structure)
+        brake_ok = None
 
     # not accepted: the least violating of best effort, previous, braking (in that order
     # on ties); computed only when some robot needs it
@@ -98,7 +106,7 @@ def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol: solve.S
                                          fp.static if nlp.n_static else None)
         v_sol = jnp.where(usable, viol(sol.traj), jnp.inf)
         v_prev = jnp.where(prev_ok, viol(prev), jnp.inf)
-        return pick_fallback(v_sol, v_prev, viol(brake))
+        return pick_fallback(v_sol, v_prev, viol(brake), brake_ok=brake_ok)
 
     fallback = jnp.where(accepted, Fallback.ACCEPTED, jax.lax.cond(
         jnp.any(~accepted & fp.robot_mask), choose,
@@ -115,10 +123,14 @@ def choose_plans(fp: FleetParams, ps: PlanState, params: NLPParams, sol: solve.S
     return Choice(plan, fallback, new_mult, new_pen)
 
 
-def pick_fallback(v_sol, v_prev, v_brake, tol: float = 1e-6):
+def pick_fallback(v_sol, v_prev, v_brake, tol: float = 1e-6, brake_ok=None):
     """The fallback of a robot whose solve was not accepted, from the violations
     (:func:`plan_violation`, m; inf: not available) of its best-effort solve, its
-    previous plan and its braking plan: the least, ties (within ``tol``) in that order."""
+    previous plan and its braking plan: the least, ties (within ``tol``) in that order.
+    ``brake_ok`` (hard limits): where False, the braking plan breaks the limits and
+    flies only if neither other plan is available (its violation + BRAKE_BEYOND)."""
+    if brake_ok is not None:
+        v_brake = jnp.where(brake_ok, v_brake, v_brake + BRAKE_BEYOND)
     use_sol = v_sol <= jnp.minimum(v_prev, v_brake) + tol
     use_prev = ~use_sol & (v_prev <= v_brake + tol)
     return jnp.where(use_sol, Fallback.BEST_EFFORT,
