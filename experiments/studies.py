@@ -133,7 +133,8 @@ OFF_COMPARED = ("antipodal_10", "random_box_20", "antipodal_10, robot 0 frozen",
 RESOLUTIONS = ("off", "auto", "sidestep")
 # the worlds study's; the baselines study compares the first four (the others hold robots
 # that run no planner, which the baselines cannot leave alone)
-WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles", "intruder")
+WORLDS = ("pillars", "wall_gap", "low_ceiling", "random_obstacles", "intruder",
+          "crossing_traffic")
 BASELINE_WORLDS = WORLDS[:4]
 STUDIES = ("paper", "collision", "faults", "deadlock", "worlds", "baselines")
 # baselines: the methods compared ([planner] overrides) and the fleets: the deadlock
@@ -190,7 +191,9 @@ DEFAULT_NOTES = {
               "surface (or a workspace face) minus its radius, min over robots, time and "
               "runs. The worlds: jaxplan/scenarios/worlds.py; intruder (a drone that runs "
               "no planner crosses a swarm mid-swap; success counts the swarm, collisions "
-              "every robot): jaxplan/scenarios/traffic.py.",
+              "every robot): jaxplan/scenarios/traffic.py; crossing_traffic (people, moving "
+              "cylinders, cross a corridor; the robots see each one's position and "
+              "velocity at every replan): jaxplan/scenarios/worlds.py.",
     "baselines": "Each method in the same harness on the same seeds: its executed motion "
                  "as pieces, the same exact metrics. krishnan: the paper's planner, default "
                  "settings (its cells are the deadlock study's \"auto\" and the worlds "
