@@ -34,11 +34,12 @@ jaxplan/scenarios/generators.py.  3-D, on the ground (z >= 0); deterministic for
     a 2 x (count / 2) grid in the y-z plane 1 m from the x_min end, goals mirrored 1 m
     from the x_max end, seeded jitter), while ``people`` (6) person-sized vertical
     cylinders (``person_radius`` 0.3 m, ``person_height`` 1.8 m, standing on the floor,
-    so no robot passes over one under the ceiling) cross it: each waits just outside a
-    side wall at a seeded x in the middle of the corridor, starts at a seeded time in
+    so no robot passes over one under the ceiling) cross it: each waits ``approach`` m
+    (1 m) outside a side wall (so that the robots see it walking before it enters) at
+    a seeded x in the middle of the corridor, starts at a seeded time in
     [0, ``start_window``] s (6 s) and walks straight across at a seeded speed in
     [``speed_min``, ``speed_max``] m/s (0.5 to 1: up to v_max / 2), then waits outside
-    the other wall (a path of two timed points: jaxplan/world.py, "Motion");
+    the other wall as far out (a path of two timed points: jaxplan/world.py, "Motion");
     ``known_path``: whether the robots know the people's paths (default false: their
     position and velocity at each replan).
 """
@@ -345,6 +346,7 @@ class CrossingTrafficParams(GeneratorParams):
     speed_min: Speed = 0.5
     speed_max: Speed = 1.0
     start_window: Window = 6.0
+    approach: NonNegativeLength = 1.0
     known_path: Annotated[bool, Strict()] = False
     jitter: NonNegativeLength = 0.05
     vehicles: VehicleNames = ("firefly",)
@@ -356,7 +358,8 @@ def crossing_traffic(count: int = 8, seed: int = 0, *, length: float = 14.0,
                      width: float = 4.0, height: float = 2.5, people: int = 6,
                      person_radius: float = 0.3, person_height: float = 1.8,
                      speed_min: float = 0.5, speed_max: float = 1.0,
-                     start_window: float = 6.0, known_path: bool = False,
+                     start_window: float = 6.0, approach: float = 1.0,
+                     known_path: bool = False,
                      jitter: float = 0.05, vehicles: Sequence[str] = ("firefly",),
                      end_state: str = "free", validate: bool = True) -> Scenario:
     """Robots fly along a corridor that people cross (module doc)."""
@@ -379,8 +382,9 @@ def crossing_traffic(count: int = 8, seed: int = 0, *, length: float = 14.0,
     x0 = -length / 2 + min(1.0, length / 4)
     start = np.stack([np.full(count, x0), y, z], 1) + _jitter(rng, count, jitter)
     goal = np.stack([np.full(count, -x0), y, z], 1) + _jitter(rng, count, jitter)
-    # the people: from just outside one side wall straight across to the other
-    off = width / 2 + person_radius + 0.05
+    # the people: from ``approach`` outside one side wall (so that they are seen walking
+    # before they enter) straight across to as far outside the other
+    off = width / 2 + person_radius + _check_pos(approach, "approach", strict=False)
     xs = rng.uniform(-0.35, 0.35, people) * length
     side = rng.choice([-1.0, 1.0], people)
     t0 = rng.uniform(0.0, start_window, people)
