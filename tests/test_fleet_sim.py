@@ -2,8 +2,9 @@
 
 One 3-vehicle mixed fleet (hummingbird, firefly, neo11), 500 Hz physics, 250 Hz
 control, 8 Hz periods (31.25 control ticks: periods of 32 and 31 ticks alternate), in a
-world with a floor, a ceiling and one obstacle of each kind (WORLD), is shared by most
-tests so that ``simulate_period`` compiles once for them.
+world with a floor, a ceiling and one obstacle of each kind, the cylinder moving (WORLD:
+a mocap body of the model), is shared by most tests so that ``simulate_period`` compiles
+once for them.
 """
 
 from __future__ import annotations
@@ -30,13 +31,16 @@ HZ_C, HZ_P = 250.0, 500.0
 
 
 # away from every other test's paths; vehicle 0's line to WORLD_GOAL[0] crosses the
-# sphere, vehicle 1 descends below its radius above the floor, vehicle 2 stays clear
+# sphere, vehicle 1 descends below its radius above the floor, vehicle 2 stays clear;
+# the cylinder walks towards vehicle 1 (closest at t = 1 s) and back (CYL_PATH)
+CYL_PATH = ([0.0, 1.0, 2.0], [[-3.0, 2.5, 1.0], [-0.8, 2.5, 1.0], [-3.0, 2.5, 1.0]])
 WORLD = World(np.array([-np.inf, -np.inf, 0.0]), np.array([np.inf, np.inf, 6.0]),
               np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros((0, 3)),
               np.zeros(0)).with_obstacles([
                   dict(kind="sphere", center=[1.5, 0.0, 1.0], radius=0.3),
                   dict(kind="box", center=[1.0, 5.5, 2.0], half_extents=[0.3, 0.3, 0.3]),
-                  dict(kind="cylinder", center=[-3.0, 2.5, 1.0], radius=0.2, half_height=1.0)])
+                  dict(kind="cylinder", radius=0.2, half_height=1.0,
+                       path=[dict(t=t, p=p) for t, p in zip(*CYL_PATH, strict=True)])])
 WORLD_GOAL = np.array([[2.0, 0.0, 1.0], [0.0, 2.0, 0.15], [2.0, 4.0, 2.0]])
 
 
@@ -44,6 +48,21 @@ WORLD_GOAL = np.array([[2.0, 0.0, 1.0], [0.0, 2.0, 0.15], [2.0, 4.0, 2.0]])
 def sim():
     return fleet.init_sim(NAMES, START, world=WORLD)
 
+
+def cylinder_at(t):
+    """(..., 3) m: WORLD's cylinder at times t (...,) s, interpolated here by hand (at
+    rest before the first and after the last point), not by jaxplan.motion."""
+    t = np.asarray(t, np.float64)
+    ts, ps = np.asarray(CYL_PATH[0]), np.asarray(CYL_PATH[1])
+    return np.stack([np.interp(t, ts, ps[:, d]) for d in range(3)], axis=-1)
+
+
+def world_centres(t):
+    """(..., R, 3): WORLD's rows (3 obstacles, z_min, z_max) where they are at times t."""
+    rows = static_rows(WORLD)
+    c = np.broadcast_to(rows.center, np.shape(t) + rows.center.shape).copy()
+    c[..., 2, :] = cylinder_at(t)
+    return c
 
 def min_jerk(p0, p1, peak_speed=2.0):
     """Straight min-jerk (quintic) lines p0 -> p1 (M, 3) at the given peak speed, m/s."""
@@ -199,7 +218,10 @@ def test_world_contacts_match_c_engine(sim):
     state, recs = run_periods(model, state, plans, n)
     _, phys, bounds, sub = c_reference(plans, n)
     rows = static_rows(WORLD)
-    sd = signed_distance(rows.kind, rows.center, rows.half, rows.radius, phys)  # (P+1, M, R)
+    # every physics state against the world at its time (the cylinder moves)
+    t_phys = np.arange(phys.shape[0]) / HZ_P
+    sd = np.stack([signed_distance(rows.kind, c, rows.half, rows.radius, x)
+                   for c, x in zip(world_centres(t_phys), phys, strict=True)])  # (P+1, M, R)
     for p, r in enumerate(recs):
         a, b = bounds[p] * sub, bounds[p + 1] * sub + 1
         np.testing.assert_allclose(r.static_dist, sd[a:b].min(0), rtol=0, atol=1e-9)
@@ -216,6 +238,13 @@ def test_world_contacts_match_c_engine(sim):
     t_floor = rep["worst_workspace"]["t"]
     assert 1.0 < t_floor < 2.0                       # low when the descent ends
     assert np.all(clear[2] > 0.5)                    # robot 2 stays clear of everything
+    # the walking cylinder: robot 1 is closest to it when it turns back, at t = 1 s, not
+    # where it stood at t = 0 (3 m away then)
+    t_cyl = np.stack([r.static_t for r in recs])[:, 1, 2]
+    d_cyl = np.stack([r.static_dist for r in recs])[:, 1, 2]
+    assert abs(t_cyl[np.argmin(d_cyl)] - 1.0) < 0.05, t_cyl[np.argmin(d_cyl)]
+    sd_still = signed_distance(rows.kind, rows.center, rows.half, rows.radius, phys)
+    assert sd[:, 1, 2].min() < sd_still[:, 1, 2].min() - 1.5
     # metrics.json's "sim" block (backend mjx) carries the same report
     period = jax.tree.map(lambda *x: np.stack(x), *recs)
     scenario = SimpleNamespace(radius=radius, v_max=np.full(3, 3.0), a_max=np.full(3, 6.0),
@@ -233,6 +262,43 @@ def test_world_contacts_match_c_engine(sim):
     assert empty == {"obstacle_collisions": 0, "min_obstacle_clearance_m": None,
                      "worst_obstacle": None, "workspace_violations": 0,
                      "min_workspace_clearance_m": None, "worst_workspace": None}
+
+
+def mocap_body_id():
+    """The cylinder's mocap body in the stepped models (the same in both layouts)."""
+    m = sm.fleet_model(["firefly"], [[0.0, 0.0, 1.0]], visual=False, mocap_world=WORLD)
+    assert m.nmocap == 1                                # only the moving obstacle
+    return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "obstacle2_body")
+
+
+def check_mocap(model, state, dt_p=1.0 / HZ_P):
+    """The mocap body holds the cylinder where it is at the state's time, and MuJoCo's
+    kinematics of the last physics step placed the body where it was one step before."""
+    t = float(fleet.sim_time(model, state))
+    pos = np.asarray(state.data.mocap_pos).reshape(-1, 3)   # (M or 1, 3): one body
+    np.testing.assert_allclose(pos, np.broadcast_to(cylinder_at(t), pos.shape), rtol=0,
+                               atol=1e-9)
+    if t > 0:
+        xpos = np.asarray(state.data.xpos)[..., mocap_body_id(), :].reshape(-1, 3)
+        np.testing.assert_allclose(xpos, np.broadcast_to(cylinder_at(t - dt_p), xpos.shape),
+                                   rtol=0, atol=1e-9)
+
+
+def test_moving_obstacle_is_a_mocap_body_at_its_motion(sim):
+    """At the start and after every period of a 2.13 s flight (through the path's three
+    knots, and at rest after them), the simulated cylinder is where its motion puts it."""
+    model, state = sim
+    assert model.mocap_rows == (2,)
+    check_mocap(model, state)
+    plans = min_jerk(START, WORLD_GOAL)
+    for _ in range(17):
+        state, _ = fleet.simulate_period(model, state, plans, fleet.sim_time(model, state),
+                                         PERIOD)
+        check_mocap(model, state)
+    assert float(fleet.sim_time(model, state)) == pytest.approx(2.128)  # 532 ticks
+    # a static world: no mocap bodies, nothing set
+    still, st = fleet.init_sim(NAMES, START, world=World.default(3))
+    assert still.mocap_rows == () and st.data.mocap_pos.shape[-2] == 0
 
 
 # ----------------------------------------------------------------------------- bad plans
@@ -298,10 +364,11 @@ def test_fleet_layout_matches_vmap_layout(sim):
     model, state0 = sim
     plans = min_jerk(START, LAYOUT_GOAL)
     st_1, rec_1 = fleet.simulate_period(model, state0, plans, 0.0, PERIOD)
-    model_f, state_f = fleet.init_sim(NAMES, START, layout="fleet")
+    model_f, state_f = fleet.init_sim(NAMES, START, layout="fleet", world=WORLD)
     st_f, rec_f = fleet.simulate_period(model_f, state_f, plans, 0.0, PERIOD)
-    for f in ("pos", "vel", "acc", "track_err", "min_dist"):
+    for f in ("pos", "vel", "acc", "track_err", "min_dist", "static_dist", "static_t"):
         np.testing.assert_allclose(getattr(rec_f, f), getattr(rec_1, f), atol=1e-12, err_msg=f)
+    check_mocap(model_f, st_f)                       # the moving cylinder, one model
     np.testing.assert_allclose(fleet.measured_state(model_f, st_f)[0],
                                fleet.measured_state(model, st_1)[0], atol=1e-12)
 

@@ -227,6 +227,84 @@ def test_clearances_against_direct_formulas(tmp_path):
     assert clearances(None, p, d.radius)[0].shape == (3, p.shape[1], 0)
 
 
+# a static disc, a disc on a timed path (at rest before t = 1 s and after t = 3 s) and
+# one at a constant velocity; in 3-D the path's cylinder stands on the floor
+MOVING_OBSTACLES = [
+    dict(kind="sphere", center=[0.0, -1.5, 1.0], radius=0.3),
+    dict(kind="cylinder", radius=0.3, half_height=0.9,
+         path=[dict(t=1.0, p=[-1.5, 1.5, 0.9]), dict(t=3.0, p=[1.5, 1.5, 0.9])]),
+    dict(kind="sphere", center=[1.0, -0.5, 1.0], radius=0.2, velocity=[-0.4, 0.2, 0.0])]
+
+
+def moving_world(ndim):
+    obs = [{k: ([dict(t=q["t"], p=q["p"][:ndim]) for q in v] if k == "path" else
+                v[:ndim] if isinstance(v, list) else v)
+            for k, v in o.items() if ndim == 3 or k != "half_height"} for o in MOVING_OBSTACLES]
+    return World.unbounded(ndim).with_obstacles(obs)
+
+
+def moving_centres(t):
+    """(2, 3) m: the moving obstacles (1 and 2) at time t, by hand."""
+    x1 = -1.5 + 3.0 * min(max(t - 1.0, 0.0), 2.0) / 2.0
+    return np.array([[x1, 1.5, 0.9], [1.0 - 0.4 * t, -0.5 + 0.2 * t, 1.0]])
+
+
+@pytest.mark.parametrize("ndim", [2, 3])
+def test_animation_draws_moving_obstacles_where_they_are(tmp_path, ndim):
+    """Each frame draws the moving obstacles (one collection of outlines, offset to each
+    one's centre) where their motion puts them at the frame's time: the offsets are the
+    projections of the hand-computed centres (2-D: back in data coordinates), the
+    outlines as wide as the bodies; the still scene holds only the static obstacle."""
+    from jaxplan.plots.animation import _frames, _px_per_m, _static_scene, _to_pixels
+    from jaxplan.plots.style import STYLE, bounds, robot_colors
+
+    d = load_run(make_run(tmp_path / "m", ndim=ndim, world=moving_world(ndim)))
+    cols, lim = np.asarray(robot_colors(3)), bounds(d)
+    tf = np.array([0.5, 2.0, 4.5])
+    with matplotlib.rc_context(STYLE):
+        fig, ax = _static_scene(d, cols, lim)
+        arts = {}
+        frames = _frames(d, fig, ax, cols, lim, tf, arts)
+        assert arts["obstacle_index"] == [1, 2]
+        for f, _ in enumerate(frames):
+            want = moving_centres(tf[f])[:, :ndim]
+            got = arts["obstacles"].get_offsets()
+            np.testing.assert_allclose(got, _to_pixels(ax, want)[0], rtol=0, atol=1e-6)
+            if ndim == 2:
+                np.testing.assert_allclose(ax.transData.inverted().transform(got), want,
+                                           rtol=0, atol=1e-9)
+        # the outlines' widths in metres: the bodies' diameters (48-gons)
+        px = np.array([np.ptp(p.vertices[:, 0]) for p in arts["obstacles"].get_paths()])
+        np.testing.assert_allclose(px / _px_per_m(ax, lim), [0.6, 0.4], rtol=5e-3)
+    if ndim == 2:  # the still scene holds the static disc only
+        assert [tuple(p.center) for p in ax.patches] == [(0.0, -1.5)]
+
+
+def test_still_figures_draw_a_moving_obstacle_at_its_start_with_its_path():
+    """draw_world_2d over a run's times: every obstacle where it is at the first time,
+    and each moving one's path (dotted, its knots inside the span, an arrowhead at its
+    end); without the moving bodies (the animation's still scene) the static one only."""
+    from matplotlib.figure import Figure
+
+    from jaxplan.plots.scene import draw_world_2d
+
+    w, lim = moving_world(2), np.array([[-3.0, 3.0], [-3.0, 3.0]])
+    ax = Figure().add_subplot()
+    draw_world_2d(ax, w, lim, span=(0.5, 5.0))
+    assert [tuple(np.round(p.center, 12)) for p in ax.patches] == [
+        (0.0, -1.5), (-1.5, 1.5), (0.8, -0.4)]
+    paths = [ln.get_xydata() for ln in ax.lines]
+    np.testing.assert_allclose(paths[0], [[-1.5, 1.5], [-1.5, 1.5], [1.5, 1.5], [1.5, 1.5]])
+    np.testing.assert_allclose(paths[1], [moving_centres(0.5)[1, :2],
+                                          moving_centres(5.0)[1, :2]], atol=1e-12)
+    assert all(ln.get_linestyle() == ":" for ln in ax.lines)
+    heads = [t.xy for t in ax.texts]                       # the arrowheads, at the ends
+    np.testing.assert_allclose(heads, [paths[0][-1], paths[1][-1]], atol=1e-12)
+    ax = Figure().add_subplot()
+    draw_world_2d(ax, w, lim, span=(0.5, 5.0), moving=False)
+    assert len(ax.patches) == 1 and len(ax.lines) == 2
+
+
 def test_frame_count_is_bounded():
     t = np.linspace(0, 60.0, 6001)
     assert frame_times(t, 150).size == 150

@@ -104,6 +104,41 @@ def test_world_geoms_match_signed_distance():
         sm.fleet_xml(["firefly"], [[0.0, 0.0, 1.0]], hull_radii=[0.3, 0.4])
 
 
+def test_moving_obstacle_geoms_sit_in_mocap_bodies():
+    """A moving obstacle's geom sits in its mocap body (a static one stays a geom of the
+    world body): with mocap_pos set from the motion at time t, MuJoCo's geom distance
+    is the world's signed distance to the obstacle where it is then.  The stepped
+    models' bare bodies (mocap_world) carry no geoms."""
+    w = World.default(3).with_obstacles([
+        WORLD_OBSTACLES[0],
+        dict(kind="cylinder", radius=0.3, half_height=0.9,
+             path=[dict(t=0.0, p=[0.0, -2.0, 0.9]), dict(t=4.0, p=[0.0, 2.0, 0.9])]),
+        dict(kind="sphere", center=[2.0, 0.0, 1.0], radius=0.4, velocity=[0.0, 0.5, 0.0])])
+    m = sm.fleet_model(["firefly"], [[1.0, 0.0, 1.0]], world=w, hull_radii=[0.3],
+                       visual=False)
+    assert m.nmocap == 2
+    body = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)
+    gid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)
+    assert [int(m.body_mocapid[body(f"obstacle{k}_body")]) for k in (1, 2)] == [0, 1]
+    assert [int(m.geom_bodyid[gid(f"obstacle{k}")]) for k in range(3)] == [
+        0, body("obstacle1_body"), body("obstacle2_body")]
+    np.testing.assert_array_equal(m.body_pos[body("obstacle1_body")], [0.0, -2.0, 0.9])
+    d = mujoco.MjData(m)
+    hull = gid("r0_hull")
+    for t in (0.0, 1.5, 6.0):
+        c = w.center_at(t)[0]
+        d.mocap_pos[:] = c[1:]
+        mujoco.mj_forward(m, d)
+        ours = signed_distance(w.kind, c, w.half, w.radius, np.array([1.0, 0.0, 1.0]))
+        ref = [mujoco.mj_geomDistance(m, d, hull, gid(f"obstacle{k}"), 10.0, None)
+               for k in range(3)]
+        np.testing.assert_allclose(ours - 0.3, ref, atol=1e-5)
+    bare = sm.fleet_model(["firefly"], [[1.0, 0.0, 1.0]], visual=False, mocap_world=w)
+    assert bare.nmocap == 2 and bare.ngeom == 0
+    with pytest.raises(ValueError, match="not both"):
+        sm.fleet_xml(["firefly"], [[0.0, 0.0, 1.0]], world=w, mocap_world=w)
+
+
 def test_xml_errors():
     with pytest.raises(ValueError, match="unknown vehicle"):
         sm.fleet_xml(["blimp"], [[0, 0, 1]])

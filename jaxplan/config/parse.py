@@ -170,12 +170,10 @@ def _check_fleet(config: Config, goal_keys: list[str]) -> None:
                                              "remove them, or use 'krishnan' (or 'orca' for "
                                              "a planar fleet)")
 
-    if fleet.world.has_motion and (config.sim.backend != "ideal"
-                                   or config.planner.method != "krishnan"):
+    if fleet.world.has_motion and config.planner.method != "krishnan":
         k = int(np.flatnonzero(fleet.world.moving)[0])
-        key = "sim.backend" if config.sim.backend != "ideal" else "planner.method"
-        raise InvalidValue(key, f"moving obstacles (obstacles[{k}] moves) fly with backend "
-                                "'ideal' and method 'krishnan' only for now")
+        raise InvalidValue("planner.method", f"moving obstacles (obstacles[{k}] moves) fly "
+                                             "with method 'krishnan' only for now")
 
     problems = scenarios.scenario_problems(fleet, max_problems=1, label=label)
     if problems:

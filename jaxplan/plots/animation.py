@@ -1,5 +1,7 @@
 """The animation of a run directory: the fleet moving, markers scaled to the collision
-radius, with trails; frames drawn here, encoded by :mod:`jaxplan.files.media`."""
+radius, with trails, and the moving obstacles where they are at each frame's time (their
+paths dotted in the still scene); frames drawn here, encoded by
+:mod:`jaxplan.files.media`."""
 
 from __future__ import annotations
 
@@ -12,7 +14,13 @@ import numpy as np
 from matplotlib.collections import LineCollection
 
 from jaxplan.files import RunData, media
-from jaxplan.plots.scene import draw_world_2d, draw_world_3d
+from jaxplan.plots.scene import (
+    OBSTACLE_EDGE,
+    OBSTACLE_FACE,
+    draw_world_2d,
+    draw_world_3d,
+    moving_outlines,
+)
 from jaxplan.plots.style import (
     ANIM_DPI,
     FIGSIZE,
@@ -71,12 +79,13 @@ def _px_per_m(ax, lim):
 
 
 def animate(data: RunData, out: Path, *, mp4: bool, max_frames: int) -> Path:
-    """Render the animation.  The static scene (axes, faint full paths, goals) is drawn
-    once; every frame restores it and draws three artists on top: the trails (one
-    LineCollection), the bodies (one EllipseCollection, discs of the collision radius,
-    back to front) and the clock.  Positions are projected to pixels once, up front
-    (orthographic 3-D view, equal aspect), so that a frame costs only its three
-    artists."""
+    """Render the animation.  The static scene (axes, the world without its moving
+    obstacles' bodies, faint full paths, goals) is drawn once; every frame restores it
+    and draws four artists on top: the moving obstacles (one PolyCollection of their
+    outlines, where they are at the frame's time), the trails (one LineCollection), the
+    bodies (one EllipseCollection, discs of the collision radius, back to front) and
+    the clock.  Positions are projected to pixels once, up front (orthographic 3-D
+    view, equal aspect), so that a frame costs only its four artists."""
     if int(max_frames) < 2:
         raise ValueError(f"max_frames must be >= 2; got {max_frames}")
     use_mp4 = _use_mp4(mp4)
@@ -111,12 +120,13 @@ def _static_scene(data: RunData, cols, lim):
                         bottom=0.08 if n == 3 else 0.11, top=0.92)
     ax = fig.add_subplot(projection="3d" if n == 3 else None)
     apply_bounds(ax, lim, n)
+    span = (data.t[0], data.t[-1])  # moving obstacles: their paths; bodies per frame
     if n == 3:
         ax.set_proj_type("ortho")
         ax.view_init(elev=25, azim=-60)
-        draw_world_3d(ax, data.world, lim)
+        draw_world_3d(ax, data.world, lim, span, moving=False)
     else:
-        draw_world_2d(ax, data.world, lim)
+        draw_world_2d(ax, data.world, lim, span, moving=False)
     for i in range(m):
         ax.plot(*data.pos[i].T, color=cols[i], lw=0.8, alpha=0.2)
         ax.plot(*data.goal[i][:, None], ls="", marker="^", ms=6, color=cols[i], mec="k",
@@ -126,10 +136,13 @@ def _static_scene(data: RunData, cols, lim):
     return fig, ax
 
 
-def _frames(data: RunData, fig, ax, cols, lim, tf):
+def _frames(data: RunData, fig, ax, cols, lim, tf, artists=None):
     """Draw the static scene once, add the animated artists, and return a generator of
-    the frames at times tf, each a fresh (H, W, 4) uint8 RGBA array."""
-    from matplotlib.collections import EllipseCollection
+    the frames at times tf, each a fresh (H, W, 4) uint8 RGBA array.  ``artists``: a
+    dict that receives the animated artists by name ("obstacles", "trails", "bodies",
+    "label"; for inspection) and "obstacle_index" (the moving obstacles in the order of
+    the obstacle collection's offsets)."""
+    from matplotlib.collections import EllipseCollection, PolyCollection
     from matplotlib.transforms import IdentityTransform
 
     m = data.num_robots
@@ -145,18 +158,35 @@ def _frames(data: RunData, fig, ax, cols, lim, tf):
     bodies = EllipseCollection(diam, diam, np.zeros(m), units="dots", offsets=fpix[:, 0],
                                offset_transform=ident, facecolors=cols, edgecolors="k",
                                linewidths=0.5, alpha=0.85, animated=True)
-    for art in (trails, bodies):
+    # the moving obstacles: outlines in pixels about their centres' projections (affine
+    # views), moved per frame to where each centre is at the frame's time
+    project = lambda pts: _to_pixels(ax, pts)[0]
+    outlines = moving_outlines(data.world, project, (data.t[0], data.t[-1]))
+    ks = list(outlines)
+    opix = (project(data.world.center_at(tf)[0][:, ks]) if ks
+            else np.zeros((tf.size, 0, 2)))  # (F, J, 2)
+    obstacles = PolyCollection([outlines[k] for k in ks], offsets=opix[0],
+                               offset_transform=ident, transform=ident,
+                               facecolors=OBSTACLE_FACE, edgecolors=OBSTACLE_EDGE,
+                               linewidths=0.8, alpha=0.6, animated=True)
+    for art in (obstacles, trails, bodies):
         fig.add_artist(art)
     label = fig.text(0.03, 0.95, "", fontsize=11, family="monospace", va="top", animated=True)
     bbox = ax.get_window_extent()
-    trails.set_clip_box(bbox)
-    bodies.set_clip_box(bbox)
+    for art in (obstacles, trails, bodies):
+        art.set_clip_box(bbox)
+    if artists is not None:
+        artists.update(obstacles=obstacles, trails=trails, bodies=bodies, label=label,
+                       obstacle_index=ks)
 
     def frames():
         for f, tt in enumerate(tf):
             hi = int(np.searchsorted(data.t, tt, side="right"))
             lo = int(np.searchsorted(data.t, tt - TRAIL_S, side="left"))
             canvas.restore_region(background)
+            if ks:  # behind the robots: a robot is never hidden
+                obstacles.set_offsets(opix[f])
+                fig.draw_artist(obstacles)
             trails.set_segments(
                 [np.concatenate([pix[i, lo:hi], fpix[i, f][None]]) for i in range(m)])
             order = np.argsort(-fdepth[:, f], kind="stable")  # far to near

@@ -1,5 +1,6 @@
-"""The static figures of a run directory: paths (3-D and top views) in the run's world,
-speed and acceleration against the limits, pairwise separation, clearance to the
+"""The static figures of a run directory: paths (3-D and top views) in the run's world
+(a moving obstacle where it starts, with its path: :mod:`jaxplan.plots.scene`), speed
+and acceleration against the limits, pairwise separation, clearance to the
 obstacles and the workspace (:func:`plot_run`; the sizes are in :mod:`jaxplan.plots`)."""
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from jaxplan.files import RunData, load_run
 from jaxplan.plots.scene import (
     OBSTACLE_EDGE,
     OBSTACLE_FACE,
+    PATH_STYLE,
     WALL,
     clearances,
     draw_world_2d,
@@ -79,10 +81,11 @@ def _plot_trajectories(data: RunData, out: Path) -> Path:
     with matplotlib.rc_context(STYLE):
         fig = new_figure(FIGSIZE["trajectories"])
         ax = fig.add_subplot(projection="3d" if n == 3 else None)
+        span = (data.t[0], data.t[-1])  # a moving obstacle at its start, and its path
         if n == 3:
-            draw_world_3d(ax, data.world, lim)
+            draw_world_3d(ax, data.world, lim, span)
         else:
-            draw_world_2d(ax, data.world, lim)
+            draw_world_2d(ax, data.world, lim, span)
         for i in range(m):
             p = data.pos[i]
             ax.plot(*p.T, color=cols[i], lw=1.6, label=_robot_label(data, i))
@@ -116,14 +119,17 @@ def _plot_trajectories(data: RunData, out: Path) -> Path:
 
 
 def _world_handles(world, axes: int = 3) -> list:
-    """Legend entries of the world's obstacles and faces (of its first ``axes`` axes);
-    none without them."""
+    """Legend entries of the world's obstacles, moving obstacles' paths and faces (of its
+    first ``axes`` axes); none without them."""
     out = []
     if world is None:
         return out
     if world.num_obstacles:
         out.append(Patch(facecolor=OBSTACLE_FACE, edgecolor=OBSTACLE_EDGE, alpha=0.6,
                          label=f"obstacle{'s' if world.num_obstacles > 1 else ''}"))
+    if world.has_motion:
+        out.append(Line2D([], [], marker=">", ms=5, mfc=OBSTACLE_EDGE, mec=OBSTACLE_EDGE,
+                          label="moving obstacle: start, path", **PATH_STYLE))
     if np.any(np.isfinite(world.lo[:axes])) or np.any(np.isfinite(world.hi[:axes])):
         out.append(Patch(facecolor=WALL, alpha=0.3, label="workspace face"))
     return out
@@ -138,7 +144,7 @@ def _plot_top_view(data: RunData, out: Path) -> Path:
     with matplotlib.rc_context(STYLE):
         fig = new_figure(FIGSIZE["trajectories"])
         ax = fig.add_subplot()
-        draw_world_2d(ax, data.world, lim)
+        draw_world_2d(ax, data.world, lim, (data.t[0], data.t[-1]))
         for i in range(m):
             p = data.pos[i]
             ax.plot(p[:, 0], p[:, 1], color=cols[i], lw=1.6, label=_robot_label(data, i),

@@ -8,6 +8,11 @@ Drawn (light, translucent, below the paths):
   ``z_min`` in grey, walls and ceiling in blue-grey).
 * top view and 2-D runs: a sphere's and a cylinder's disc, a box's rectangle (their
   footprints in x-y); the finite x and y faces as lines with the outside hatched.
+* a moving obstacle (jaxplan/world.py, "Motion"): its body where it is at the run's
+  first time, and, given the run's times (``span``), its centre's path over them as a
+  dotted line with an arrowhead where it ends (:func:`obstacle_paths`).  The animation
+  leaves its body out of the still scene and draws it where it is at each frame's time
+  (:mod:`jaxplan.plots.animation`, :func:`moving_outlines`).
 
 Clearances (:func:`clearances`): robot i's clearance to obstacle k at a sample is the
 exact signed distance of its centre to the obstacle (:func:`jaxplan.world.signed_distance`)
@@ -29,17 +34,23 @@ FLOOR = "0.55"
 WALL = "#7f93b0"
 
 
-def world_extent(world: World | None, near_lo, near_hi):
-    """(lo, hi) (N,) m: the box [near_lo, near_hi] grown to hold the obstacles and the
-    finite workspace bounds, but by at most its largest side on each side (a far wall or
-    a very tall pillar does not shrink the paths to a dot; what lies beyond is cut off)."""
+def world_extent(world: World | None, near_lo, near_hi, span=None):
+    """(lo, hi) (N,) m: the box [near_lo, near_hi] grown to hold the obstacles (a moving
+    one along its path over ``span`` = (t0, t1) s, the run's times; at t = 0 without)
+    and the finite workspace bounds, but by at most its largest side on each side (a far
+    wall or a very tall pillar does not shrink the paths to a dot; what lies beyond is
+    cut off)."""
     lo, hi = np.array(near_lo, np.float64), np.array(near_hi, np.float64)
     if world is None:
         return lo, hi
     reach = float(np.max(hi - lo))
     far_lo, far_hi = lo - reach, hi + reach
+    paths = obstacle_paths(world, span) if span is not None else {}
     for k in range(world.num_obstacles):
         a, b = obstacle_box(world, k)
+        if k in paths:  # the box swept along the path (linear between its points)
+            shift = paths[k] - world.center[k]
+            a, b = a + shift.min(axis=0), b + shift.max(axis=0)
         if np.any(a > far_hi) or np.any(b < far_lo):
             continue  # too far to show
         lo = np.minimum(lo, np.maximum(a, far_lo))
@@ -53,9 +64,10 @@ def world_extent(world: World | None, near_lo, near_hi):
     return lo, hi
 
 
-def obstacle_box(world: World, k: int):
-    """The axis-aligned bounding box (lo, hi) of obstacle k."""
-    c = world.center[k]
+def obstacle_box(world: World, k: int, center=None):
+    """The axis-aligned bounding box (lo, hi) of obstacle k (at ``center``; default
+    where it is at t = 0)."""
+    c = world.center[k] if center is None else np.asarray(center, np.float64)
     kind = int(world.kind[k])
     if kind == BOX:
         h = world.half[k]
@@ -66,12 +78,73 @@ def obstacle_box(world: World, k: int):
     return c - h, c + h
 
 
+def obstacle_paths(world: World | None, span) -> dict[int, np.ndarray]:
+    """{k: (P, N) m} the centre of each obstacle that moves during ``span`` = (t0, t1) s,
+    at t0, at its knots inside the span and at t1: the exact polyline of its
+    piecewise-linear motion (jaxplan/world.py, "Motion"); an obstacle that stays put
+    over the span has none."""
+    if world is None or not world.has_motion:
+        return {}
+    t0, t1 = (float(x) for x in span)
+    out = {}
+    for k in np.flatnonzero(world.moving):
+        kt = world.knot_t[k]
+        t = np.unique(np.concatenate([[t0, t1], kt[(kt > t0) & (kt < t1)]]))
+        p = world.center_at(t)[0][:, k]
+        if np.any(p != p[0]):
+            out[int(k)] = p
+    return out
+
+
+def start_centres(world: World, span) -> np.ndarray:
+    """(K, N) m: the obstacles where they are at the run's first time (span[0]; t = 0
+    without a span)."""
+    return world.center if span is None else world.center_at(float(span[0]))[0]
+
+
+def moving_outlines(world: World | None, project, span=None):
+    """The outlines of the obstacles that move during ``span`` as the view shows them:
+    {k: (V, 2) display points relative to the projection of the obstacle's centre},
+    ``project`` mapping positions (..., N) m to display points (..., 2) (an
+    orthographic view or a 2-D axes: affine, so that moving the obstacle moves its
+    outline by its centre's projected motion).  The outline is the convex hull of the
+    projected body (a sphere's or a cylinder's surface points): exact up to the
+    sampling of its circles (48 points)."""
+    from scipy.spatial import ConvexHull
+
+    out = {}
+    if world is None:
+        return out
+    ks = obstacle_paths(world, span) if span is not None else np.flatnonzero(world.moving)
+    ring = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
+    for k in ks:
+        r = world.radius[k]
+        if world.dim == 2:
+            rel = np.column_stack([r * np.cos(ring), r * np.sin(ring)])
+        elif int(world.kind[k]) == CYLINDER:
+            h = world.half[k, 2]
+            rel = np.concatenate([np.column_stack([r * np.cos(ring), r * np.sin(ring),
+                                                   np.full(ring.size, z)]) for z in (-h, h)])
+        else:  # a sphere: circles of latitude
+            lat = np.linspace(-np.pi / 2, np.pi / 2, 13)
+            u, v = np.meshgrid(ring, lat)
+            rel = r * np.column_stack([(np.cos(u) * np.cos(v)).ravel(),
+                                       (np.sin(u) * np.cos(v)).ravel(), np.sin(v).ravel()])
+        c = world.center[k]
+        px = project(c + rel) - project(c[None])[0]
+        out[int(k)] = px[ConvexHull(px).vertices]
+    return out
+
+
 # ----------------------------------------------------------------------------- drawing
 
 
-def draw_world_3d(ax, world: World | None, lim) -> None:
+def draw_world_3d(ax, world: World | None, lim, span=None, moving: bool = True) -> None:
     """Obstacles and finite workspace faces on a 3-D axes whose limits are ``lim``
-    (3, 2); boxes and cylinders are cut at the limits, obstacles outside them left out."""
+    (3, 2); boxes and cylinders are cut at the limits, obstacles outside them left out.
+    ``span``: (t0, t1) s, the run's times: the obstacles where they are at t0, and each
+    moving one's path over them (module docstring); None: at t = 0, no paths.
+    ``moving``: False leaves the moving obstacles' bodies out (the animation's)."""
     if world is None:
         return
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
@@ -86,9 +159,14 @@ def draw_world_3d(ax, world: World | None, lim) -> None:
         ax.add_collection3d(Poly3DCollection(
             [quad], facecolors=FLOOR if floor else WALL, alpha=0.22 if floor else 0.10,
             edgecolors="0.35" if floor else WALL, linewidths=0.6))
+    centres = start_centres(world, span)
+    for p in (obstacle_paths(world, span) if span is not None else {}).values():
+        _draw_path(ax, p)
     for k in range(world.num_obstacles):
-        kind, c = int(world.kind[k]), world.center[k]
-        a, b = obstacle_box(world, k)
+        kind, c = int(world.kind[k]), centres[k]
+        if world.moving[k] and not moving:
+            continue
+        a, b = obstacle_box(world, k, c)
         a, b = np.maximum(a, lim[:, 0]), np.minimum(b, lim[:, 1])
         if np.any(a >= b):
             continue  # outside the view
@@ -144,9 +222,10 @@ def _faces_in_view(world: World, lim):
     return out
 
 
-def draw_world_2d(ax, world: World | None, lim) -> None:
+def draw_world_2d(ax, world: World | None, lim, span=None, moving: bool = True) -> None:
     """Obstacle footprints and the finite x, y workspace faces on a 2-D axes (a planar
-    run, or the top view of a 3-D one) whose limits are ``lim`` (>= 2, 2)."""
+    run, or the top view of a 3-D one) whose limits are ``lim`` (>= 2, 2); ``span`` and
+    ``moving`` as in :func:`draw_world_3d`."""
     if world is None:
         return
     for i, bound, name in _faces_in_view(world, lim):
@@ -162,8 +241,13 @@ def draw_world_2d(ax, world: World | None, lim) -> None:
             ax.add_patch(Rectangle((span[0], outside[0]), span[1] - span[0],
                                    outside[1] - outside[0], facecolor=WALL, alpha=0.12,
                                    hatch="//", edgecolor=WALL, lw=0, zorder=0))
+    centres = start_centres(world, span)
+    for p in (obstacle_paths(world, span) if span is not None else {}).values():
+        _draw_path(ax, p[:, :2])
     for k in range(world.num_obstacles):
-        c = world.center[k]
+        c = centres[k]
+        if world.moving[k] and not moving:
+            continue
         style = dict(facecolor=OBSTACLE_FACE, edgecolor=OBSTACLE_EDGE, alpha=0.55, lw=0.8,
                      zorder=1)
         if int(world.kind[k]) == BOX:
@@ -171,6 +255,26 @@ def draw_world_2d(ax, world: World | None, lim) -> None:
             ax.add_patch(Rectangle((c[0] - h[0], c[1] - h[1]), 2 * h[0], 2 * h[1], **style))
         else:
             ax.add_patch(Circle((c[0], c[1]), world.radius[k], **style))
+
+
+PATH_STYLE = dict(color=OBSTACLE_EDGE, lw=1.6, ls=":", alpha=0.9)
+
+
+def _draw_path(ax, p) -> None:
+    """A moving obstacle's centre path p (P, 2 or 3) m: dotted, with an arrowhead at its
+    end pointing along its last stretch."""
+    ax.plot(*p.T, zorder=2, **PATH_STYLE)
+    step = np.diff(p, axis=0)
+    last = step[np.flatnonzero(np.any(step != 0.0, axis=1))[-1]]
+    size = 0.1 * float(np.sum(np.linalg.norm(step, axis=1)))  # the head: 10 % of the path
+    tail = p[-1] - last / np.linalg.norm(last) * max(size, 1e-9)
+    if p.shape[1] == 3:
+        ax.quiver(*tail, *(p[-1] - tail), color=OBSTACLE_EDGE, arrow_length_ratio=1.0,
+                  linewidth=1.4)
+    else:
+        ax.annotate("", xy=p[-1], xytext=tail, zorder=2,
+                    arrowprops=dict(arrowstyle="-|>", color=OBSTACLE_EDGE, lw=1.4,
+                                    mutation_scale=14, shrinkA=0, shrinkB=0))
 
 
 # --------------------------------------------------------------------------- clearance

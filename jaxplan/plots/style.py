@@ -67,8 +67,8 @@ def robot_colors(m: int) -> list:
 def bounds(data: RunData, pad_frac=0.05):
     """Axis limits (N, 2) with equal scale on every axis: all positions and goals, padded
     by the largest radius, and the world's obstacles and nearby finite workspace faces
-    (:func:`jaxplan.plots.scene.world_extent`); every range at least 20 % of the largest
-    one."""
+    (:func:`jaxplan.plots.scene.world_extent`; a moving obstacle along its path over the
+    run); every range at least 20 % of the largest one."""
     pts = [data.pos.reshape(-1, data.ndim), data.goal]
     if data.waypoints is not None:
         w = data.waypoints.reshape(-1, data.ndim)
@@ -76,7 +76,7 @@ def bounds(data: RunData, pad_frac=0.05):
     p = np.concatenate(pts)
     lo = p.min(axis=0) - data.radius.max()
     hi = p.max(axis=0) + data.radius.max()
-    lo, hi = world_extent(data.world, lo, hi)
+    lo, hi = world_extent(data.world, lo, hi, span=(data.t[0], data.t[-1]))
     span = hi - lo
     full = max(span.max(), 1e-6)
     span = np.maximum(span, 0.2 * full) * (1 + 2 * pad_frac)

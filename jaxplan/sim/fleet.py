@@ -31,7 +31,11 @@ Inside one period (a ``lax.scan`` over control ticks at ``control_hz``):
    signed distances from every vehicle's centre to every obstacle and workspace face
    of the world (:func:`jaxplan.world.signed_distance`, exact for spheres, boxes,
    cylinders and planes to 1e-6 m; the vehicle's body is the sphere of its collision
-   radius, subtracted by the caller), with the time of each minimum.
+   radius, subtracted by the caller), with the time of each minimum; a moving obstacle
+   counts where its motion puts it at the step's time (below).
+
+Moving obstacles are mocap bodies of the stepped models, placed from their motion at
+every physics step (:mod:`jaxplan.sim.obstacles`, where the world's measures live).
 
 The world is measured, not collided.  The stepped models carry no geoms at all; the
 MJCF of :func:`jaxplan.sim.model.fleet_xml` with ``world=`` holds the floor, walls and
@@ -92,9 +96,10 @@ import numpy as np
 from jaxplan.pytree import traced
 from jaxplan.sim import import_mjx, se3
 from jaxplan.sim import model as sim_model_lib
+from jaxplan.sim.obstacles import obstacle_centres, set_mocap, sim_world, static_dists, static_min
 from jaxplan.trajectory import Trajectory
 from jaxplan.vehicles import get_vehicle
-from jaxplan.world import StaticRows, World, rows_as_jax, signed_distance, static_rows
+from jaxplan.world import StaticRows, World
 
 mjx = import_mjx()
 
@@ -111,7 +116,7 @@ Array = jax.Array
 @partial(jax.tree_util.register_dataclass,
          data_fields=["mjx_model", "params", "world"],
          meta_fields=["names", "layout", "physics_hz", "control_hz", "motor_lag",
-                      "jerk_feedforward", "batched_leaves"])
+                      "jerk_feedforward", "batched_leaves", "mocap_rows"])
 @dataclass(frozen=True)
 class SimModel:
     """Static description of the simulated fleet (a pytree; share it between worlds).
@@ -122,7 +127,7 @@ class SimModel:
         params: se3.SE3Params with a leading (M,) axis.
         world: :class:`jaxplan.world.StaticRows` (R rows: the obstacles, then the finite
             workspace faces; jnp arrays) whose distances are measured every physics
-            step; R = 0 without a world.
+            step; R = 0 without a world; its ``motion`` (None if static) moves them.
         names: (M,) vehicle names (static).
         layout: "vmap" | "fleet" (static).
         physics_hz, control_hz: rates, Hz (static); physics_hz / control_hz is an integer.
@@ -131,6 +136,8 @@ class SimModel:
             body rates (False gives RotorS's law exactly).
         batched_leaves: indices of ``mjx_model``'s flattened leaves that carry the
             vehicle axis ("vmap"; empty for "fleet").
+        mocap_rows: the rows of ``world`` that are mocap bodies (the moving obstacles;
+            mocap index j is row mocap_rows[j]; static).
     """
 
     mjx_model: object
@@ -143,6 +150,7 @@ class SimModel:
     motor_lag: bool
     jerk_feedforward: bool
     batched_leaves: tuple
+    mocap_rows: tuple = ()
 
     @property
     def num_vehicles(self) -> int:
@@ -159,7 +167,8 @@ class SimState(NamedTuple):
 
     Attributes:
         data: mjx.Data.  ``"fleet"``: qpos (7 M,), qvel (6 M,), ...; ``"vmap"``: every
-            leaf with a leading (M,) axis, qpos (M, 7), qvel (M, 6).
+            leaf with a leading (M,) axis, qpos (M, 7), qvel (M, 6).  mocap_pos (J, 3)
+            ("vmap": (M, J, 3)): the moving obstacles at the state's time.
         rotor_speed: (M, MAX_ROTORS) rotor speeds, rad/s (evolves only with motor_lag;
             otherwise the last commanded, clamped speeds).
         hold_position: (M, 3) m: the last finite reference position (used, with zero
@@ -194,8 +203,9 @@ class PeriodRecord(NamedTuple):
             of the period (the start state and the state after every physics step), m;
             +inf on the diagonal.
         static_dist: (M, R) minimum over the same states of the signed distance from
-            each vehicle's centre to each row of ``SimModel.world``, m (negative: the
-            centre is inside; subtract the collision radius for the clearance).
+            each vehicle's centre to each row of ``SimModel.world`` (a moving obstacle
+            where it is at that state's time), m (negative: the centre is inside;
+            subtract the collision radius for the clearance).
         static_t: (M, R) simulation time of that minimum, s (the first, on ties).
         saturated: (M,) int32: ticks in which some rotor speed was clamped.
         bad_reference: (M,) int32: ticks whose plan sample was non-finite (held instead).
@@ -221,12 +231,14 @@ class PeriodRecord(NamedTuple):
 # ----------------------------------------------------------------------------- build
 
 
-def _batched_model(names: Sequence[str], physics_hz: float, integrator: str):
-    """One-body MJX model with the leaves that differ between ``names`` stacked (M,)."""
+def _batched_model(names: Sequence[str], physics_hz: float, integrator: str,
+                   mocap_world: World | None):
+    """One-body MJX model (and the moving obstacles' mocap bodies of ``mocap_world``)
+    with the leaves that differ between ``names`` stacked (M,)."""
     kinds = sorted(set(names))
     one = {n: sim_model_lib.to_mjx(sim_model_lib.fleet_model(
         [n], [[0.0, 0.0, 0.0]], timestep=1.0 / physics_hz, integrator=integrator,
-        visual=False))[0] for n in kinds}
+        visual=False, mocap_world=mocap_world))[0] for n in kinds}
     leaves = {n: jax.tree.leaves(m) for n, m in one.items()}
     treedef = jax.tree.structure(one[kinds[0]])
     ref = leaves[kinds[0]]
@@ -270,10 +282,11 @@ def init_sim(names: Sequence[str], start_positions, *, physics_hz: float = 500.0
         jerk_feedforward: feed the plan's jerk to the controller (see se3).
         integrator: "Euler" (default) or "RK4" (MuJoCo's).
         world: a 3-D :class:`jaxplan.world.World` whose obstacles and finite workspace
-            faces are measured every physics step (``PeriodRecord.static_dist``), or
-            None (nothing measured: R = 0).  A world with the same number of rows can
-            replace it later (``dataclasses.replace(sim, world=sim_world(w))``) without
-            a recompilation.
+            faces are measured every physics step (``PeriodRecord.static_dist``; a
+            moving obstacle where it is then, and a mocap body of the model: module
+            docstring), or None (nothing measured: R = 0).  A world with the same rows,
+            moving obstacles and knot count can replace it later
+            (``dataclasses.replace(sim, world=sim_world(w))``) without a recompilation.
     Returns:
         (SimModel, SimState) for one world.
     Raises:
@@ -305,29 +318,25 @@ def init_sim(names: Sequence[str], start_positions, *, physics_hz: float = 500.0
         raise ValueError(f"start_positions must be ({len(names)}, 3), got {pos.shape}")
     if not np.all(np.isfinite(pos)):
         raise ValueError("start_positions must be finite")
+    world = world if world is not None else World.unbounded(3)
+    mocap_world = world if world.has_motion else None  # its moving obstacles: mocap bodies
     if layout == "fleet":
         mx, _ = sim_model_lib.to_mjx(sim_model_lib.fleet_model(
-            names, pos, timestep=1.0 / physics_hz, integrator=integrator, visual=False))
+            names, pos, timestep=1.0 / physics_hz, integrator=integrator, visual=False,
+            mocap_world=mocap_world))
         batched = ()
     else:
-        mx, batched = _batched_model(names, physics_hz, integrator)
-    sim = SimModel(mjx_model=mx, params=se3.controller_params(names),
-                   world=sim_world(world if world is not None else World.unbounded(3)),
+        mx, batched = _batched_model(names, physics_hz, integrator, mocap_world)
+    sim = SimModel(mjx_model=mx, params=se3.controller_params(names), world=sim_world(world),
                    names=names,
                    layout=layout,
                    physics_hz=physics_hz, control_hz=control_hz, motor_lag=bool(motor_lag),
-                   jerk_feedforward=bool(jerk_feedforward), batched_leaves=batched)
+                   jerk_feedforward=bool(jerk_feedforward), batched_leaves=batched,
+                   mocap_rows=sim_model_lib.mocap_rows(world))
     yaw = np.zeros(len(names)) if yaws is None else np.asarray(yaws, np.float64)
     if yaw.shape != (len(names),) or not np.all(np.isfinite(yaw)):
         raise ValueError(f"yaws must be {len(names)} finite angles, got {yaws!r}")
     return sim, initial_state(sim, jnp.asarray(pos), jnp.asarray(yaw))
-
-
-def sim_world(world: World) -> StaticRows:
-    """The rows of a 3-D world that the simulation measures (``SimModel.world``)."""
-    if world.dim != 3:
-        raise ValueError(f"the simulated world must be 3-D, got {world.dim}-D")
-    return rows_as_jax(static_rows(world))
 
 
 @jax.jit
@@ -343,7 +352,8 @@ def initial_state(sim: SimModel, positions, yaws=None) -> SimState:
         sim: SimModel.
         positions: (M, 3) m.  yaws: (M,) rad or None (0).
     Returns:
-        SimState at tick 0: zero velocity and acceleration, rotor speeds at hover.
+        SimState at tick 0: zero velocity and acceleration, rotor speeds at hover, the
+        moving obstacles' mocap bodies where they are at t = 0.
     """
     M = sim.num_vehicles
     p = jnp.asarray(positions, jnp.float64).reshape(M, 3)
@@ -357,6 +367,7 @@ def initial_state(sim: SimModel, positions, yaws=None) -> SimState:
         d1 = mjx.make_data(_single_model(sim))
         data = jax.tree.map(lambda x: jnp.broadcast_to(x, (M,) + x.shape), d1)
         data = data.replace(qpos=qpos)
+    data = set_mocap(sim, data, obstacle_centres(sim.world, 0.0))
     hover = jax.vmap(lambda prm: se3.allocate(prm, prm.mass * prm.gravity, jnp.zeros(3))[0])(
         sim.params)
     return SimState(data=data, rotor_speed=jnp.sqrt(hover), hold_position=p, yaw=yaw,
@@ -421,26 +432,11 @@ def _positions(sim: SimModel, data) -> Array:
     return _per_vehicle(sim, data.qpos, 7)[..., 0:3]
 
 
-def _static_dists(sim: SimModel, p: Array) -> Array:
-    """(M, R) signed distances from the centres p (M, 3) to the world's rows."""
-    w = sim.world
-    return signed_distance(w.kind, w.center, w.half, w.radius, p, xp=jnp)
-
-
 def _sq_dists(p: Array) -> Array:
     """(M, M) squared centre distances, +inf on the diagonal."""
     d = p[:, None, :] - p[None, :, :]
     d2 = jnp.sum(d * d, axis=-1)
     return jnp.where(jnp.eye(p.shape[0], dtype=bool), jnp.inf, d2)
-
-
-def _static_min(smin, sim: SimModel, p: Array, t):
-    """Running (minimum (M, R), its time (M, R)) updated with the centres p at time t
-    (a non-finite distance never replaces a finite minimum)."""
-    dmin, tmin = smin
-    d = _static_dists(sim, p)
-    lower = d < dmin
-    return jnp.where(lower, d, dmin), jnp.where(lower, t, tmin)
 
 
 def _ticks_in_period(period_s: float, control_hz: float) -> int:
@@ -484,9 +480,12 @@ def _simulate_period(sim: SimModel, state: SimState, plans: Trajectory, t_plan0,
             thrust, moments = jax.vmap(se3.wrench_from_rotor_speeds)(params, w)
             w = jax.vmap(lambda prm, w1, c1: se3.motor_lag(prm, w1, c1, dt_p))(params, w, w_sq_cmd)
         data = _physics_step(sim, data, thrust, moments)
+        c = obstacle_centres(sim.world, t_step)  # at the new state's time
+        data = set_mocap(sim, data, c)
         p = _positions(sim, data)
         dmin2 = jnp.fmin(dmin2, _sq_dists(p))
-        return (data, w, w_sq_cmd, thrust, moments, dmin2, _static_min(smin, sim, p, t_step)), None
+        smin = static_min(smin, sim.world, p, c, t_step)
+        return (data, w, w_sq_cmd, thrust, moments, dmin2, smin), None
 
     def tick(carry, x):
         data, w, hold, dmin2, smin, sat, bad, nonfin = carry
@@ -521,12 +520,15 @@ def _simulate_period(sim: SimModel, state: SimState, plans: Trajectory, t_plan0,
         )
         return new_carry, rec
 
-    p0 = _positions(sim, state.data)
+    t0 = k0.astype(jnp.float64) * dt_c
+    c0 = obstacle_centres(sim.world, t0)
+    data0 = set_mocap(sim, state.data, c0)  # where they are now, whatever the state held
+    p0 = _positions(sim, data0)
     dmin2_0 = _sq_dists(p0)
-    sd0 = _static_dists(sim, p0)
-    smin0 = (sd0, jnp.full(sd0.shape, k0.astype(jnp.float64) * dt_c))
+    sd0 = static_dists(sim.world, p0, c0)
+    smin0 = (sd0, jnp.full(sd0.shape, t0))
     zeros_i = jnp.zeros(M, jnp.int32)
-    carry0 = (state.data, state.rotor_speed, state.hold_position, dmin2_0, smin0, zeros_i,
+    carry0 = (data0, state.rotor_speed, state.hold_position, dmin2_0, smin0, zeros_i,
               zeros_i, jnp.zeros(M, bool))
     (data, w, hold, dmin2, smin, sat, bad, nonfin), recs = jax.lax.scan(tick, carry0, xs)
     pos, vel, acc, rpos, err = recs

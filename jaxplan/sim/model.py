@@ -18,7 +18,9 @@ constraint solver has nothing to do.  With a world (:func:`world_geoms`) its flo
 walls, ceiling and obstacles are geoms too, also non-colliding: a robot touching them
 is a collision measured from the simulated states at every physics step (the exact
 signed distance of the robot's collision sphere, as robot pairs are measured;
-:mod:`jaxplan.sim.fleet`), not a contact force.  Without one there is a ground plane at
+:mod:`jaxplan.sim.fleet`), not a contact force.  A moving obstacle is a mocap body
+(``obstacle<k>_body``) whose position the simulation sets from the obstacle's motion at
+every physics step (:mod:`jaxplan.sim.obstacles`).  Without one there is a ground plane at
 z = 0 for pictures.  No air: density and viscosity are 0, so the only forces are gravity
 (9.81 m/s^2, as in RotorS) and the actuators.
 
@@ -128,26 +130,29 @@ def _vehicle_actuators(prefix: str) -> str:
 
 
 def world_geoms(world: World) -> str:
-    """MJCF geoms (children of <worldbody>) of a 3-D :class:`~jaxplan.world.World`.
+    """MJCF geoms and bodies (children of <worldbody>) of a 3-D
+    :class:`~jaxplan.world.World`.
 
     Every finite workspace face is a plane named ``ws_<face>`` (``ws_z_min`` is the
     floor; :func:`jaxplan.world.face_names`) through the bound, its normal (the plane's
-    local z axis) pointing into the workspace; obstacle k is ``obstacle<k>``: a sphere
-    (size = radius), a box (size = half extents) or a vertical cylinder (size = radius,
-    half height) at its centre.  None of them collides (contype = conaffinity = 0, as
-    every geom of the fleet): contact is measured from the simulated states
-    (:mod:`jaxplan.sim.fleet`).
+    local z axis) pointing into the workspace; obstacle k is the geom ``obstacle<k>``: a
+    sphere (size = radius), a box (size = half extents) or a vertical cylinder (size =
+    radius, half height) at its centre.  A moving obstacle's geom sits in a mocap body
+    ``obstacle<k>_body`` (:func:`mocap_bodies`) at its centre at t = 0, so that setting
+    its ``mocap_pos`` moves it; a static one is a geom of the world body.  None of them
+    collides (contype = conaffinity = 0, as every geom of the fleet): contact is measured
+    from the simulated states (:mod:`jaxplan.sim.fleet`).
     """
-    if world.dim != 3:
-        raise ValueError(f"world_geoms: the world is {world.dim}-D; MuJoCo needs 3-D")
+    _check_3d(world, "world_geoms")
     nocol = 'contype="0" conaffinity="0" group="2"'
     out = []
     for name, (c, n) in zip(face_names(world), _faces(world), strict=True):
         rgba = "0.8 0.8 0.8 1" if name == "z_min" else "0.6 0.7 0.8 0.25"
         out.append(f'<geom name="ws_{name}" type="plane" size="0 0 1" pos="{_v(c)}" '
                    f'zaxis="{_v(n)}" rgba="{rgba}" {nocol}/>')
+    moving = world.moving
     for k in range(world.num_obstacles):
-        kind, c = int(world.kind[k]), world.center[k]
+        kind = int(world.kind[k])
         if kind == SPHERE:
             typ, size = "sphere", _f(world.radius[k])
         elif kind == BOX:
@@ -156,9 +161,39 @@ def world_geoms(world: World) -> str:
             typ, size = "cylinder", f"{_f(world.radius[k])} {_f(world.half[k, 2])}"
         else:
             raise ValueError(f"world_geoms: obstacle {k} has unknown kind {kind}")
-        out.append(f'<geom name="obstacle{k}" type="{typ}" size="{size}" pos="{_v(c)}" '
-                   f'rgba="0.55 0.45 0.35 0.8" {nocol}/>')
+        geom = (f'<geom name="obstacle{k}" type="{typ}" size="{size}" '
+                f'rgba="0.55 0.45 0.35 0.8" {nocol}/>')
+        if moving[k]:  # placed by its mocap body
+            out.append(_mocap_body(k, world.center[k], geom))
+        else:
+            out.append(geom.replace(" rgba=", f' pos="{_v(world.center[k])}" rgba=', 1))
     return "".join(f"\n    {g}" for g in out)
+
+
+def mocap_bodies(world: World) -> str:
+    """MJCF of a 3-D world's moving obstacles as bare mocap bodies (children of
+    <worldbody>, no geoms): obstacle k that moves is ``obstacle<k>_body`` at its centre
+    at t = 0, in the order of k, so that mocap index j is the j-th moving obstacle.
+    What the stepped models of :mod:`jaxplan.sim.fleet` carry: the simulation sets
+    their ``mocap_pos`` from the motion at every physics step; nothing else reads them
+    (they have no mass and nothing collides).  Empty for a static world."""
+    _check_3d(world, "mocap_bodies")
+    return "".join(f"\n    {_mocap_body(k, world.center[k])}" for k in mocap_rows(world))
+
+
+def mocap_rows(world: World) -> tuple[int, ...]:
+    """The obstacles that are mocap bodies (:func:`world_geoms`, :func:`mocap_bodies`):
+    the moving ones, in mocap order (index j is obstacle ``mocap_rows(world)[j]``)."""
+    return tuple(int(k) for k in np.flatnonzero(world.moving))
+
+
+def _mocap_body(k: int, c, inner: str = "") -> str:
+    return f'<body name="obstacle{k}_body" mocap="true" pos="{_v(c)}">{inner}</body>'
+
+
+def _check_3d(world: World, what: str) -> None:
+    if world.dim != 3:
+        raise ValueError(f"{what}: the world is {world.dim}-D; MuJoCo needs 3-D")
 
 
 def _v(x) -> str:
@@ -180,7 +215,7 @@ def _faces(world: World):
 
 def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0.002,
               integrator: str = "Euler", visual: bool = True, world: World | None = None,
-              hull_radii=None) -> str:
+              hull_radii=None, mocap_world: World | None = None) -> str:
     """MJCF of a (heterogeneous) fleet: one non-colliding free body per vehicle.
 
     Args:
@@ -201,10 +236,15 @@ def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0
         hull_radii: (M,) m or None: a sphere geom ``r{i}_hull`` of this radius on each
             vehicle (its collision radius, for pictures and distance queries such as
             ``mujoco.mj_geomDistance``; non-colliding, massless).
+        mocap_world: a 3-D World whose moving obstacles become bare mocap bodies
+            (:func:`mocap_bodies`; what :mod:`jaxplan.sim.fleet` steps), or None; not
+            with ``world`` (whose moving obstacles are mocap bodies with their geoms).
     Returns:
         The MJCF string.  Vehicle i is body ``r{i}_body`` with joint ``r{i}_joint``,
         site ``r{i}_actuation`` and actuators ``r{i}_thrust, r{i}_mx, r{i}_my, r{i}_mz``
-        (ctrl[4 i : 4 i + 4] = thrust N, body moments N m).
+        (ctrl[4 i : 4 i + 4] = thrust N, body moments N m).  The world's moving
+        obstacles (``world`` or ``mocap_world``) are mocap bodies ``obstacle<k>_body``,
+        before the vehicles: mocap index j is the j-th moving obstacle.
     """
     vehicles = [get_vehicle(n) for n in names]
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
@@ -230,9 +270,13 @@ def fleet_xml(names: Sequence[str], positions, *, yaws=None, timestep: float = 0
                      for i, v in enumerate(vehicles))
     scenery = """
     <light pos="0 0 10" dir="0 0 -1" directional="true"/>""" if visual else ""
+    if world is not None and mocap_world is not None:
+        raise ValueError("fleet_xml: give world or mocap_world, not both")
     if world is not None:
         scenery += world_geoms(world)
-    elif visual:
+    elif mocap_world is not None:
+        scenery += mocap_bodies(mocap_world)
+    if world is None and visual:
         scenery += """
     <geom name="ground" type="plane" size="50 50 0.1" rgba="0.8 0.8 0.8 1"
           contype="0" conaffinity="0"/>"""
