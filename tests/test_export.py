@@ -270,6 +270,67 @@ def test_mcap_messages_match_their_schemas(tmp_path):
     assert seen == set(report["topics"])
 
 
+def test_mcap_moving_obstacles(tmp_path):
+    """A moving cylinder (a velocity) on /obstacles at every sample, where
+    World.center_at puts it; the static sphere only on /world; a run whose obstacles
+    all rest has no /obstacles topic."""
+    pytest.importorskip("mcap")
+    from mcap.reader import make_reader
+
+    from jaxplan.export.mcap import SCHEMAS, topics
+    from jaxplan.world import World
+
+    world = World.default(3).with_obstacles([
+        {"kind": "cylinder", "center": [-2.0, 3.0, 1.0], "radius": 0.3, "half_height": 1.0,
+         "velocity": [0.7, -0.2, 0.0]},
+        {"kind": "sphere", "center": [2.0, -3.0, 1.0], "radius": 0.4}])
+    assert world.moving.tolist() == [True, False]
+    run = write_synthetic_run(tmp_path / "moving", [0.1], duration=1.0, world=world)
+    report = export_run(run, "mcap", tmp_path / "o")
+    assert report["topics"] == topics(1, moving=True) and "/obstacles" in report["topics"]
+    scenes = check_mcap(run, report["file"])
+    (static,) = [e for e in scenes["/world"]["entities"] if e["id"] == "obstacles"]
+    assert [len(static[k]) for k in ("spheres", "cubes", "cylinders")] == [1, 0, 0]
+    assert static["spheres"][0]["pose"]["position"] == {"x": 2.0, "y": -3.0, "z": 1.0}
+    try:
+        import jsonschema
+    except ImportError:
+        jsonschema = None
+    moving = []
+    with open(report["file"], "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        counts = reader.get_summary().statistics.channel_message_counts
+        for schema, _, msg in reader.iter_messages(topics=["/obstacles"]):
+            body = json.loads(msg.data)
+            if jsonschema is not None and not moving:
+                jsonschema.validate(body, SCHEMAS[schema.name])
+            (e,) = body["entities"]
+            assert e["id"] == "obstacle_0" and e["frame_id"] == "world"
+            assert e["timestamp"]["sec"] * 10**9 + e["timestamp"]["nsec"] == msg.log_time
+            assert [len(e[k]) for k in ("spheres", "cubes", "cylinders")] == [0, 0, 1]
+            cyl = e["cylinders"][0]
+            assert cyl["size"] == {"x": 0.6, "y": 0.6, "z": 2.0}  # as /world draws it
+            p = cyl["pose"]["position"]
+            moving.append((msg.log_time, p["x"], p["y"], p["z"]))
+    with np.load(run / "trajectories.npz") as z:
+        t = z["t"]
+    got = np.array(moving)
+    assert np.array_equal(got[:, 0].astype(np.int64), np.round(t * 1e9).astype(np.int64))
+    want = world.center_at(got[:, 0] * 1e-9)[0][:, 0]  # (T, 3): the cylinder's centre
+    assert np.abs(got[:, 1:] - want).max() <= 1e-9
+    assert np.abs(got[-1, 1:] - [-1.3, 2.8, 1.0]).max() <= 1e-9  # 1 s at (0.7, -0.2, 0)
+    assert sum(counts.values()) == report["messages"]
+    # the same world with nothing moving: no /obstacles, the same /world
+    still = write_synthetic_run(tmp_path / "still", [0.1], duration=1.0,
+                                world=world.static_part())
+    report = export_run(still, "mcap", tmp_path / "o")
+    assert "/obstacles" not in report["topics"]
+    with open(report["file"], "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert "/obstacles" not in {c.topic for c in summary.channels.values()}
+    assert check_mcap(still, report["file"])["/world"] == scenes["/world"]
+
+
 # ------------------------------------------------------------------ the paper's runs
 
 

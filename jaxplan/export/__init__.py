@@ -7,7 +7,8 @@ Modules:
     crazyswarm.py   Crazyswarm ``uav_trajectory`` CSVs: each robot's executed pieces
                     refitted as at most 31 C2 pieces of degree 7 within 1 cm
     mcap.py         an MCAP file (JSON messages under Foxglove's schemas): poses,
-                    velocities, goals, the world and the metrics
+                    velocities, goals, the world (a moving obstacle
+                    at every sample) and the metrics
 
     export_run(run_dir, fmt, out_dir=None, height=None) -> report (a dict)
 

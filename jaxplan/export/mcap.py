@@ -17,8 +17,12 @@ Topics:
                                                   its radius, frame-locked to robot_<i>)
     /goals             foxglove.SceneUpdate       once: each robot's waypoints
     /paths             foxglove.SceneUpdate       once: each robot's sampled path
-    /world             foxglove.SceneUpdate       once: the obstacles and the finite
-                                                  workspace faces (thin plates)
+    /world             foxglove.SceneUpdate       once: the static obstacles and the
+                                                  finite workspace faces (thin plates)
+    /obstacles         foxglove.SceneUpdate       at each sample, only where some obstacle
+                                                  moves: each moving obstacle where it is
+                                                  then (World.center_at), entity
+                                                  obstacle_<k> (k: its index in the world)
     /metrics           jaxplan_msgs.Metrics       once: metrics.json
 
 plus a metadata record ``jaxplan_run`` (name, backend, success, robots, dimensions,
@@ -139,11 +143,14 @@ SCHEMAS = {
 }
 
 
-def topics(num_robots: int) -> dict[str, str]:
-    """Every topic the file holds -> its schema name."""
+def topics(num_robots: int, moving: bool = False) -> dict[str, str]:
+    """Every topic the file holds -> its schema name (/obstacles where some obstacle
+    moves: ``moving``)."""
     out = {"/tf": "foxglove.FrameTransforms", "/robots": "foxglove.SceneUpdate",
            "/goals": "foxglove.SceneUpdate", "/paths": "foxglove.SceneUpdate",
            "/world": "foxglove.SceneUpdate", "/metrics": "jaxplan_msgs.Metrics"}
+    if moving:
+        out["/obstacles"] = "foxglove.SceneUpdate"
     for i in range(num_robots):
         out[f"/robot_{i}/pose"] = "foxglove.PoseInFrame"
         out[f"/robot_{i}/state"] = "jaxplan_msgs.RobotState"
@@ -241,32 +248,61 @@ def _paths_scene(run, ns: int) -> dict:
     return {"deletions": [], "entities": ents}
 
 
+def _obstacle_shape(w, k: int, center, planar: bool) -> tuple[str, dict]:
+    """Obstacle k of world w drawn at ``center`` (3 entries, m): (the SceneEntity's
+    primitive list it goes in, the primitive); a planar run's obstacles are
+    PLANAR_HEIGHT_M high, a planar sphere a cylinder."""
+    from jaxplan.world import BOX, CYLINDER, SPHERE
+
+    gray = _color(-1, 0.6)
+    r = float(w.radius[k])
+    if w.kind[k] == BOX:
+        size = 2.0 * _to3(w.half[k])
+        if planar:
+            size[2] = PLANAR_HEIGHT_M
+        return "cubes", {"pose": _pose(center), "size": _v3(size), "color": gray}
+    if w.kind[k] == CYLINDER or (w.kind[k] == SPHERE and planar):
+        height = PLANAR_HEIGHT_M if planar else 2.0 * float(w.half[k][-1])
+        return "cylinders", {"pose": _pose(center), "size": _v3((2 * r, 2 * r, height)),
+                             "bottom_scale": 1.0, "top_scale": 1.0, "color": gray}
+    return "spheres", _ball(center, 2.0 * r, gray)
+
+
+def _moving(run) -> np.ndarray:
+    """The indices of the run's moving obstacles (empty where none moves)."""
+    w = run.world
+    return np.zeros(0, int) if w is None else np.nonzero(w.moving)[0]
+
+
 def _world_scene(run, ns: int) -> dict:
-    from jaxplan.world import BOX, CYLINDER, SPHERE, face_names
+    from jaxplan.world import face_names
 
     w = run.world
     planar = run.ndim == 2
-    spheres, cubes, cylinders = [], [], []
-    gray = _color(-1, 0.6)
+    prims = {"spheres": [], "cubes": [], "cylinders": []}
     if w is not None:
+        moving = w.moving
         for k in range(w.kind.size):
-            c = _to3(w.center[k])
-            r = float(w.radius[k])
-            if w.kind[k] == BOX:
-                size = 2.0 * _to3(w.half[k])
-                if planar:
-                    size[2] = PLANAR_HEIGHT_M
-                cubes.append({"pose": _pose(c), "size": _v3(size), "color": gray})
-            elif w.kind[k] == CYLINDER or (w.kind[k] == SPHERE and planar):
-                height = PLANAR_HEIGHT_M if planar else 2.0 * float(w.half[k][-1])
-                cylinders.append({"pose": _pose(c), "size": _v3((2 * r, 2 * r, height)),
-                                  "bottom_scale": 1.0, "top_scale": 1.0, "color": gray})
-            else:
-                spheres.append(_ball(c, 2.0 * r, gray))
-    ents = [_entity(ns, "obstacles", spheres=spheres, cubes=cubes, cylinders=cylinders)]
+            if not moving[k]:  # a moving one is /obstacles'
+                key, prim = _obstacle_shape(w, k, _to3(w.center[k]), planar)
+                prims[key].append(prim)
+    ents = [_entity(ns, "obstacles", **prims)]
     plates = _workspace_plates(run, face_names(w) if w is not None else [])
     if plates:
         ents.append(_entity(ns, "workspace", cubes=plates))
+    return {"deletions": [], "entities": ents}
+
+
+def _obstacles_scene(run, ns: int, centers, moving) -> dict:
+    """The moving obstacles ``moving`` (indices) at ``centers`` ((K, N) m, every
+    obstacle's centre at this time): one entity each, ``obstacle_<k>`` (the same id at
+    every sample, so Foxglove replaces it)."""
+    w = run.world
+    planar = run.ndim == 2
+    ents = []
+    for k in moving:
+        key, prim = _obstacle_shape(w, int(k), _to3(centers[k]), planar)
+        ents.append(_entity(ns, f"obstacle_{int(k)}", **{key: [prim]}))
     return {"deletions": [], "entities": ents}
 
 
@@ -313,7 +349,7 @@ def mcap_bytes(run) -> bytes:
                   for name, schema in SCHEMAS.items()}
     chan = {topic: wr.register_channel(topic=topic, message_encoding="json",
                                        schema_id=schema_ids[schema])
-            for topic, schema in topics(run.num_robots).items()}
+            for topic, schema in topics(run.num_robots, _moving(run).size > 0).items()}
     seq = dict.fromkeys(chan, 0)
 
     def put(topic: str, ns: int, msg: dict) -> None:
@@ -331,9 +367,13 @@ def mcap_bytes(run) -> bytes:
     pos, vel, acc = _to3(run.pos), _to3(run.vel), _to3(run.acc)
     speed = np.linalg.norm(vel, axis=-1)
     acc_norm = np.linalg.norm(acc, axis=-1)
+    moving = _moving(run)
+    centers = run.world.center_at(run.t)[0] if moving.size else None  # (T, K, N)
     for k, t in enumerate(run.t):
         ns = _ns(t)
         stamp = _stamp(ns)
+        if moving.size:
+            put("/obstacles", ns, _obstacles_scene(run, ns, centers[k], moving))
         put("/tf", ns, {"transforms": [
             {"timestamp": stamp, "parent_frame_id": FRAME, "child_frame_id": f"robot_{i}",
              "translation": _v3(pos[i, k]), "rotation": dict(_IDENTITY)}
@@ -374,7 +414,8 @@ def export_mcap(run_dir, out_dir=None) -> dict:
     data = mcap_bytes(run)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, data)
-    per_sample = 1 + 2 * run.num_robots
+    moving = _moving(run).size > 0
+    per_sample = 1 + 2 * run.num_robots + int(moving)
     return {"format": "mcap", "run": str(run.run_dir), "file": str(path), "bytes": len(data),
             "messages": 5 + per_sample * run.t.size, "robots": run.num_robots,
-            "topics": topics(run.num_robots)}
+            "topics": topics(run.num_robots, moving)}
