@@ -73,7 +73,8 @@ SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
 # other at the end.  Only the order changes; a unit missing here runs after.
 LONGEST_FIRST = ("tiny", "tests/test_solver.py", "tests/test_costs.py", "tests/test_world.py",
                  "tests/test_config_bounds.py", "tests/test_sweep_engines.py",
-                 "tests/test_fuzz.py", "tests/test_noncooperative.py", "tests/test_guess.py", "tests/test_solver_devices.py",
+                 "tests/test_fuzz.py", "tests/test_noncooperative.py", "tests/test_guess.py",
+                 "tests/test_solver_devices.py",
                  "tests/test_sim_model.py", "tests/test_predict.py", "tests/test_fleet_sim.py",
                  "tests/test_plots.py", "tests/test_guide.py", "tests/test_config.py",
                  "tests/test_trajectory.py")
