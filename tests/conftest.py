@@ -67,14 +67,15 @@ SHARED_WORKER = {f"tests/{m}.py": "tiny" for m in
 
 # The units in order of their test time (2-core CPU, seconds: tiny 117, test_solver 106,
 # test_costs 45, test_world 45, test_fuzz 28, test_guess 24, test_solver_devices 20,
-# test_sim_model 15, test_predict 12, test_fleet_sim 12, test_plots 12, test_guide 9,
-# test_config 8, test_trajectory 6; the others 4 and under; test_config_bounds and
-# test_sweep_engines about 40 and 45), handed out longest first:
+# test_sim_model 15, test_hard_limits 13, test_predict 12, test_fleet_sim 12, test_plots 12,
+# test_guide 9, test_config 8, test_trajectory 6; the others 6 and under;
+# test_config_bounds and test_sweep_engines about 40 and 45), handed out longest first:
 # the last units to run are then short ones, and neither worker waits long for the
 # other at the end.  Only the order changes; a unit missing here runs after.
 LONGEST_FIRST = ("tiny", "tests/test_solver.py", "tests/test_costs.py", "tests/test_world.py",
                  "tests/test_config_bounds.py", "tests/test_sweep_engines.py",
-                 "tests/test_fuzz.py", "tests/test_guess.py", "tests/test_solver_devices.py",
+                 "tests/test_fuzz.py", "tests/test_guess.py", "tests/test_hard_limits.py",
+                 "tests/test_solver_devices.py",
                  "tests/test_sim_model.py", "tests/test_predict.py", "tests/test_fleet_sim.py",
                  "tests/test_plots.py", "tests/test_guide.py", "tests/test_config.py",
                  "tests/test_trajectory.py")
