@@ -369,6 +369,7 @@ def test_traced_keys_run_at_their_bounds():
         assert result.compile_s == 0.0, (path, v)
 
 
+@pytest.mark.slow  # ~18 s on 2 cores (a program of its own): `make test-slow`
 def test_no_weight_breaks_the_hard_limits():
     """[planner] limits = "hard": every weight at each end of its accepted range (and 0
     where accepted), and each vehicle limit at its bounds, gives a run whose executed
