@@ -40,7 +40,7 @@ def min_jerk_piece(p0, p1, T):
 
 
 def make_run(run_dir, *, ndim=3, metrics=True, config=None, drop=None, nan_key=None,
-             world=None):
+             world=None, extra=None):
     """A 3-robot run: robots 0 and 1 swap along x passing 0.7 m apart (rho = 0.54 m,
     ratio 1.296), robot 2 crosses them later; each moves on one quintic piece, then holds
     its goal on a constant piece until t_end = 5 s.  ``world``: stored with the run."""
@@ -67,6 +67,7 @@ def make_run(run_dir, *, ndim=3, metrics=True, config=None, drop=None, nan_key=N
     )
     if world is not None:
         data.update(world_arrays(world))
+    data.update(extra or {})
     if nan_key is not None:
         data[nan_key] = data[nan_key].copy()
         data[nan_key][1, 7, 0] = np.nan
@@ -468,3 +469,18 @@ def test_mp4_with_ffmpeg(tmp_path):
     assert path.name == "animation.mp4"
     head = path.read_bytes()[:12]
     assert head[4:8] == b"ftyp"
+
+
+def test_a_non_cooperative_robot_is_labelled_so(tmp_path):
+    """trajectories.npz's ``cooperative`` reads back (all True where a run stored none,
+    a wrong shape is an error naming the key) and labels the robot in the figures."""
+    from jaxplan.plots.run import _robot_label
+
+    d = load_run(make_run(tmp_path / "c", extra={"cooperative": np.array([True, True, False])}))
+    np.testing.assert_array_equal(d.cooperative, [True, True, False])
+    assert _robot_label(d, 2) == "2: firefly (non-cooperative)"
+    assert _robot_label(d, 0) == "0: hummingbird"
+    bare = load_run(make_run(tmp_path / "b"))
+    assert bare.cooperative.all() and _robot_label(bare, 2) == "2: firefly"
+    with pytest.raises(ValueError, match="cooperative"):
+        load_run(make_run(tmp_path / "x", extra={"cooperative": np.array([True, False])}))

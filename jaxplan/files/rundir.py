@@ -91,7 +91,9 @@ class RunData:
     seg_coeffs (S, N, D+1)) or None; waypoints (M, W, N) m or None; metrics: the parsed
     metrics.json or {}; limits: {"v_max": (M,), "a_max": (M,)} m/s, m/s^2, NaN where
     unknown; name: the run's name (config ``name`` or the folder name); world: the
-    :class:`jaxplan.world.World` (unbounded and empty for a run that stored none).
+    :class:`jaxplan.world.World` (unbounded and empty for a run that stored none);
+    cooperative: (M,) bool, False for a robot that ran no planner (all True for a run
+    that stored none).
     """
 
     run_dir: Path
@@ -108,6 +110,7 @@ class RunData:
     limits: dict
     name: str
     world: World | None = None
+    cooperative: np.ndarray | None = None
 
     @property
     def num_robots(self) -> int:
@@ -161,8 +164,18 @@ def load_run(run_dir, *, complete: bool = False) -> RunData:
         run_dir=run_dir, t=t, pos=pos, vel=vel, acc=acc, radius=radius, goal=goal,
         vehicle=vehicle, pieces=_pieces(npz, raw, m, n), waypoints=_waypoints(npz, raw, m, n),
         metrics=metrics, limits=_resolve_limits(vehicle, config, metrics, cpath, mpath),
-        name=name, world=_world(npz, raw, n),
+        name=name, world=_world(npz, raw, n), cooperative=_cooperative(npz, raw, m),
     )
+
+
+def _cooperative(npz: Path, raw: dict, m: int) -> np.ndarray:
+    """(M,) bool: the run's ``cooperative`` flags, all True where it stored none."""
+    if "cooperative" not in raw:
+        return np.ones(m, bool)
+    c = np.asarray(raw["cooperative"])
+    if c.shape != (m,) or c.dtype != bool:
+        raise _err(npz, "cooperative", f"must be (M,) = ({m},) bool; got {c.dtype} {c.shape}")
+    return c
 
 
 def _world(npz: Path, raw: dict, n: int) -> World:

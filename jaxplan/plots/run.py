@@ -71,7 +71,9 @@ def plot_run(run_dir, *, animation=True, mp4=False, max_frames=150) -> list[Path
 
 
 def _robot_label(data, i):
-    return f"{i}: {data.vehicle[i]}" if data.vehicle[i] else f"robot {i}"
+    label = f"{i}: {data.vehicle[i]}" if data.vehicle[i] else f"robot {i}"
+    coop = getattr(data, "cooperative", None)
+    return label if coop is None or coop[i] else f"{label} (non-cooperative)"
 
 
 def _plot_trajectories(data: RunData, out: Path) -> Path:
