@@ -218,6 +218,20 @@ def _world_near(p, rng, rows=10):
     return rows_as_jax(static_rows(w, rows))
 
 
+def _random_point(rng, st, p, n_others: int, n_static: int, T: float):
+    """Random AL multipliers (collision 0-50, limits 0-5, static 0-50), the end-kind
+    constants and a point near the zero shape at horizon T (s) for the NLP p."""
+    b = nlp.basis(st)
+    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, n_others))),
+                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))),
+                       jnp.asarray(rng.uniform(0, 50, (st.n_col, n_static))))
+    kc = nlp.kind_constants(p.rest, st)
+    x = np.zeros(st.n_x)
+    x[:-1] = rng.normal(size=st.n_x - 1) * 0.05
+    x[-1] = np.log(T)
+    return mult, kc, jnp.asarray(x)
+
+
 @pytest.mark.parametrize("st,rest", [
     (NLPStructure(collision="barrier+constraint", segments=2, n_coast_samples=6, n_static=10),
      False),
@@ -231,15 +245,7 @@ def test_static_rows_structured_derivatives_match_autodiff(st, rest):
     rng = np.random.default_rng(1)
     p = random_problem(rng, n_others=6, rest=rest, w=weights(q_lim=0.5))
     p = p._replace(static=_world_near(p, rng))
-    b = nlp.basis(st)
-    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))),
-                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))),
-                       jnp.asarray(rng.uniform(0, 50, (st.n_col, 10))))
-    kc = nlp.kind_constants(p.rest, st)
-    x = np.zeros(st.n_x)
-    x[:-1] = rng.normal(size=st.n_x - 1) * 0.05
-    x[-1] = np.log(5.0)
-    x = jnp.asarray(x)
+    mult, kc, x = _random_point(rng, st, p, 10, 10, 5.0)
     f = lambda xx: nlp.merit(xx, p, st, kc, mult, 30.0)
 
     @jax.jit
@@ -297,15 +303,7 @@ def test_moving_rows_structured_derivatives_match_autodiff():
               np.zeros(0)).with_obstacles(obs)
     rows = rows_at(rows_as_jax(static_rows(w, 6)), 1.2)
     p = p._replace(static=rows)
-    b = nlp.basis(st)
-    mult = Multipliers(jnp.asarray(rng.uniform(0, 50, (st.n_col, p.other_mask.shape[-1]))),
-                       jnp.asarray(rng.uniform(0, 5, (len(b.lim_s), 3))),
-                       jnp.asarray(rng.uniform(0, 50, (st.n_col, 6))))
-    kc = nlp.kind_constants(p.rest, st)
-    x = np.zeros(st.n_x)
-    x[:-1] = rng.normal(size=st.n_x - 1) * 0.05
-    x[-1] = np.log(3.0)
-    x = jnp.asarray(x)
+    mult, kc, x = _random_point(rng, st, p, p.other_mask.shape[-1], 6, 3.0)
     f = lambda xx: nlp.merit(xx, p, st, kc, mult, 30.0)
     z, tau = nlp.unpack(x, st)
     zs = jnp.stack([z, 1.1 * z, -z])

@@ -418,8 +418,8 @@ class BatchRunner:
             raise ValueError(f"a batch holds 1 to {batch} points, got {len(points)}")
         configs = self._configs(points, weights, built)
         r_pad = self._r_pad(points, built, r_pad)
-        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built),
-                          grid_knots(built.values()))
+        own, knots = _has_own(built), grid_knots(built.values())  # the grid's, once
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, own, knots)
                  for c, p in zip(configs, points, strict=True)]
         full = preps + [preps[-1]] * (batch - len(preps))
         fpb = stack_trees([c.fp for c in full])
@@ -534,8 +534,8 @@ class BatchRunner:
         through it (a call runs in its caller's thread, without the GIL: the runs go
         side by side on the cores; one executable, so the same operations for all)."""
         configs = self._configs(points, weights, built)
-        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, _has_own(built),
-                          grid_knots(built.values()))
+        own, knots = _has_own(built), grid_knots(built.values())  # the grid's, once
+        preps = [_prepare(c, p, built[(p.scenario, p.seed)], m_pad, r_pad, own, knots)
                  for c, p in zip(configs, points, strict=True)]
         device = jax.devices("cpu")[0]
         self._one_run_program(preps[0], built, r_pad, device)
