@@ -34,7 +34,7 @@ from jaxplan.planner.stall import default_params as deadlock_params
 from jaxplan.rollout import OwnPath, RolloutStructure, Task
 from jaxplan.scenarios import Scenario
 from jaxplan.trajectory import Trajectory
-from jaxplan.world import ALL_KINDS, PLANE, World, row_kinds, rows_as_jax, static_rows
+from jaxplan.world import ALL_KINDS, PLANE, World, fleet_box, row_kinds, rows_as_jax, static_rows
 
 # lower bound on every plan's horizon: two replan periods, so that a plan ends after the
 # next replan.  A shorter one is flown to its end within the period, braking far beyond
@@ -64,7 +64,8 @@ def structures(config: Config, *, only_needed: bool = True,
     sc = build_scenario(config)
     free = ~(np.asarray(sc.rest) | np.asarray(sc.has_goal_velocity))
     coast = pc.coast_samples if (np.any(free) or not only_needed) else 0
-    R = static_rows(sc.world).mask.shape[0] if n_static is None else n_static
+    world = planner_world(config, sc)
+    R = static_rows(world).mask.shape[0] if n_static is None else n_static
     # a world of at most max_static_rows rows: no selection (the same program as 0)
     planner = PlannerStructure(max_neighbors=pc.max_neighbors, solver_pool=pc.solver_pool,
                                max_static_rows=pc.max_static_rows
@@ -76,7 +77,7 @@ def structures(config: Config, *, only_needed: bool = True,
         n_coast_samples=coast, n_static=planner.static_slots(R),
         # the kinds matter only to static rows: without, the default (one program)
         static_kinds=ALL_KINDS if planner.static_slots(R) == 0 else
-        world_kinds(sc.world) if static_kinds is None else tuple(static_kinds),
+        world_kinds(world) if static_kinds is None else tuple(static_kinds),
         hard_limits=pc.limits == "hard",
     )
     steps = max(1, math.ceil(config.sim.duration_s * pc.replan_hz - 1e-9))
@@ -85,6 +86,26 @@ def structures(config: Config, *, only_needed: bool = True,
                             steps=steps, faults=fc.enabled,
                             latency_periods=round(fc.latency_s * pc.replan_hz) if fc.enabled
                             else 0)
+
+
+def planner_world(config: Config, scenario: Scenario) -> World:
+    """The world the planner's NLPs keep to (their static rows): the scenario's, with
+    ``[planner] region = "fleet"`` its workspace intersected with the fleet's region, the
+    box spanned by every robot's start and waypoints grown by ``region_margin_m`` on every
+    side (:func:`jaxplan.world.fleet_box`, what escape_m measures against
+    with its own margin).  The faces hold the robot's body, so its centre stays its
+    radius inside them.  The metrics and the simulation keep the scenario's world."""
+    pc = config.planner
+    if pc.region == "workspace":
+        return scenario.world
+    lo, hi = fleet_box(scenario.start, scenario.waypoints, pc.region_margin_m)
+    return scenario.world.within(lo, hi)
+
+
+def planner_rows(config: Config, scenario: Scenario) -> int:
+    """The static rows of the planner's world (:func:`planner_world`): its obstacles and
+    finite faces."""
+    return static_rows(planner_world(config, scenario)).mask.shape[0]
 
 
 def world_kinds(world: World) -> tuple[int, ...]:
@@ -115,7 +136,7 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
         t_min=jnp.asarray(T_MIN_PERIODS / pc.replan_hz),
         prediction_weight=jnp.asarray(pc.k_t / pc.q_dynm),
         accept_violation=jnp.asarray(ACCEPT_VIOLATION), settings=settings,
-        static=_static(scenario, n_static, knots),
+        static=_static(planner_world(config, scenario), n_static, knots),
         deadlock=deadlock_params(
             enabled=resolution_enabled(pc.deadlock, scenario.dim), window=window,
             progress=pc.stall_progress_m, near=pc.stall_near_m, hold=pc.sidestep_hold_s,
@@ -130,8 +151,8 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
     )
 
 
-def _static(scenario: Scenario, n_static: int | None, knots: int | None = None):
-    rows = static_rows(scenario.world, n_static, knots)
+def _static(world: World, n_static: int | None, knots: int | None = None):
+    rows = static_rows(world, n_static, knots)
     if rows.mask.shape[0] == 0:
         return None
     return rows_as_jax(rows)

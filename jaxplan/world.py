@@ -55,6 +55,7 @@ has ``motion = None``: its programs and results are those of a world without mot
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -210,6 +211,15 @@ class World:
         center = path_at(knot_t, knot_p, knot_v, np.float64(0.0))[0]
         return World(self.lo, self.hi, kind, center, half, radius, knot_t, knot_p, knot_v,
                      known)
+
+    def within(self, lo, hi) -> World:
+        """A copy whose workspace is this one's intersected with the box [lo, hi] ((N,)
+        m each, +-inf: unbounded on that side): the tighter bound of each face."""
+        lo = np.maximum(self.lo, np.asarray(lo, np.float64))
+        hi = np.minimum(self.hi, np.asarray(hi, np.float64))
+        if np.any(lo >= hi):
+            raise ValueError(f"World.within: the box [{lo}, {hi}] leaves no workspace")
+        return dataclasses.replace(self, lo=lo, hi=hi)
 
     def obstacles(self) -> list[dict]:
         """The obstacles as config dicts (what ``[[obstacles]]`` holds; a moving one with
@@ -534,6 +544,17 @@ def face_names(world: World) -> list[str]:
 def no_static_rows(N: int) -> StaticRows:
     """Zero static rows (an NLP without a world)."""
     return static_rows(World.unbounded(N))
+
+
+def fleet_box(start, waypoints, margin=1.0):
+    """(lo, hi) (N,) m: the axis-aligned box spanned by every robot's start and waypoints
+    (its goal the last), grown by ``margin`` m on every side.
+
+    Args: start (M, N) m; waypoints (M, W, N) m; margin m."""
+    start = np.asarray(start, np.float64)
+    pts = np.concatenate([start[:, None], np.asarray(waypoints, np.float64)], axis=1)
+    pts = pts.reshape(-1, start.shape[1])
+    return pts.min(axis=0) - margin, pts.max(axis=0) + margin
 
 
 # ---------------------------------------------------------------------- checks

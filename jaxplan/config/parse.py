@@ -175,6 +175,15 @@ def _check_fleet(config: Config, goal_keys: list[str]) -> None:
         raise InvalidValue("planner.method", f"moving obstacles (obstacles[{k}] moves) fly "
                                              "with method 'krishnan' only for now")
 
+    pc = config.planner
+    if pc.region == "fleet":
+        body = float(np.max(fleet.radius)) + pc.safety_margin_m
+        if pc.region_margin_m <= body:
+            raise InvalidValue("planner.region_margin_m",
+                               f"{pc.region_margin_m:g} m leaves no room for a robot's body "
+                               f"inside the fleet's region (the largest robot's radius plus "
+                               f"safety_margin_m is {body:g} m); give more")
+
     problems = scenarios.scenario_problems(fleet, max_problems=1, label=label)
     if problems:
         p = problems[0]

@@ -81,6 +81,13 @@ DEFAULT_PREDICTION = "min_time_jerk"
 # plans within them fly: jaxplan/planner/choice.py)
 LIMIT_MODES = ("soft", "hard")
 DEFAULT_LIMITS = "soft"
+# where each robot's NLP keeps its body: inside the world's workspace alone ("workspace"),
+# or also inside the fleet's region, the box of the starts and waypoints grown by
+# region_margin_m ("fleet": jaxplan.run_setup.planner_world), which escape_m measures
+# against (jaxplan.metrics.report.ESCAPE_MARGIN_M)
+REGION_MODES = ("workspace", "fleet")
+DEFAULT_REGION = "workspace"
+DEFAULT_REGION_MARGIN_M = 1.0
 # the planner: the paper's ("krishnan"), or the ORCA baseline: RVO2 through pyrvo ("orca",
 # jaxplan/baselines/orca.py), RVO2-3D in JAX ("orca3d", jaxplan/baselines/orca3d.py)
 PLANNER_METHODS = ("krishnan", "orca", "orca3d")
@@ -224,6 +231,11 @@ class PlannerConfig:
     plan whose speed, acceleration and jerk stay within its vehicle's limits at every
     instant (a Bernstein bound), else its braking plan kept within them
     (jaxplan/planner/choice.py).
+    region "workspace" | "fleet": each robot's NLP keeps its body inside the world's
+    workspace, or also inside the fleet's region: the box spanned by every robot's start
+    and waypoints grown by region_margin_m (m) on every side (its faces are static rows
+    of the planner's world only: jaxplan.run_setup.planner_world; the metrics' world is
+    the workspace).
     method "krishnan" | "orca" | "orca3d": the paper's planner, or the ORCA baseline:
     "orca" through RVO2 (pyrvo; jaxplan/baselines/orca.py; planar fleets, obstacles as
     polygons), "orca3d" RVO2-3D's algorithm in JAX (jaxplan/baselines/orca3d.py; planar
@@ -265,6 +277,8 @@ class PlannerConfig:
     guide: string(one_of(GUIDE_MODES)) = DEFAULT_GUIDE
     prediction: string(one_of(PREDICTIONS)) = DEFAULT_PREDICTION
     limits: string(one_of(LIMIT_MODES)) = DEFAULT_LIMITS
+    region: string(one_of(REGION_MODES)) = DEFAULT_REGION
+    region_margin_m: number(ge=0.0, le=MAX_COORD) = DEFAULT_REGION_MARGIN_M
     method: string(one_of(PLANNER_METHODS)) = DEFAULT_METHOD
     orca_neighbor_dist_m: number(gt=0.0, le=MAX_COORD) = DEFAULT_ORCA_NEIGHBOR_DIST_M
     orca_max_neighbors: integer(ge=1, le=MAX_ROBOTS) = DEFAULT_ORCA_MAX_NEIGHBORS

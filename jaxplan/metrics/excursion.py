@@ -27,6 +27,7 @@ from jaxplan.metrics.pieces import (
     to_unit,
     unit_roots,
 )
+from jaxplan.world import fleet_box
 
 __all__ = ["goal_excursion_pieces", "escape_pieces", "fleet_box"]
 
@@ -175,13 +176,3 @@ def escape_pieces(seg_robot, seg_t0, seg_t1, seg_coeffs, lo, hi, num_robots=None
     np.maximum.at(out, r[maybe][sel[0]], np.sqrt(np.max(sq, axis=1)))
     return out
 
-
-def fleet_box(start, waypoints, margin=1.0):
-    """(lo, hi) (N,) m: the axis-aligned box spanned by every robot's start and waypoints
-    (its goal the last), grown by ``margin`` m on every side.
-
-    Args: start (M, N) m; waypoints (M, W, N) m; margin m."""
-    start = np.asarray(start, np.float64)
-    pts = np.concatenate([start[:, None], np.asarray(waypoints, np.float64)], axis=1)
-    pts = pts.reshape(-1, start.shape[1])
-    return pts.min(axis=0) - margin, pts.max(axis=0) + margin

@@ -63,7 +63,7 @@ from jaxplan.metrics.report import compute_metrics
 from jaxplan.nlp import Weights
 from jaxplan.planner.guide import guide_enabled
 from jaxplan.rollout import RolloutStructure, Task, rollout_batch
-from jaxplan.run_setup import fleet_params, structures, task_of
+from jaxplan.run_setup import fleet_params, planner_rows, structures, task_of
 from jaxplan.scenarios import Scenario
 from jaxplan.sweep.points import SweepPoint
 from jaxplan.sweep.table import csv_row
@@ -393,8 +393,7 @@ class BatchRunner:
         return configs
 
     def _r_pad(self, points, built, r_pad: int | None) -> int:
-        need = max(static_rows(built[(p.scenario, p.seed)].world).mask.shape[0]
-                   for p in points)
+        need = max(planner_rows(self.config, built[(p.scenario, p.seed)]) for p in points)
         if r_pad is None:
             return need
         if r_pad < need:

@@ -93,12 +93,12 @@ from jaxplan import env_positive_int
 from jaxplan.config import SWEEP_ENGINES, Config
 from jaxplan.files import append_lines, atomic_write_text, file_lock
 from jaxplan.progress import AfterFirstUpdate, NoProgress
+from jaxplan.run_setup import planner_rows
 from jaxplan.sweep.batch import BatchRunner, CompileCounter, Tally
 from jaxplan.sweep.guard import guard_config
 from jaxplan.sweep.methods import MethodGridError, check_method_grid, run_method_points
 from jaxplan.sweep.points import SweepPoint, build_scenarios, sweep_points
 from jaxplan.sweep.table import SweepError, best_setting, csv_text, read_sweep_csv, row_key
-from jaxplan.world import static_rows
 
 __all__ = [
     "BATCH_ENV",
@@ -208,8 +208,8 @@ def _resume_csv(csv_path: Path, say) -> set:
 # ------------------------------------------------------------------------ the sweep
 
 
-def shape_groups(todo: list[SweepPoint], grid: list[SweepPoint],
-            built) -> list[tuple[tuple, int, int]]:
+def shape_groups(config: Config, todo: list[SweepPoint], grid: list[SweepPoint],
+                 built) -> list[tuple[tuple, int, int]]:
     """The points to run by shape group (dimensions, waypoints), each with the robot
     count and the static rows of that group over the whole grid (so that a resumed
     sweep, a shard, every engine and every batch size pad a run alike): [(points, m_pad,
@@ -223,19 +223,19 @@ def shape_groups(todo: list[SweepPoint], grid: list[SweepPoint],
         sc = built[(p.scenario, p.seed)]
         m, r = pads.get(shape(p), (0, 0))
         pads[shape(p)] = (max(m, sc.num_robots),
-                          max(r, static_rows(sc.world).mask.shape[0]))
+                          max(r, planner_rows(config, sc)))
     groups: dict[tuple[int, int], list[SweepPoint]] = {}
     for p in todo:
         groups.setdefault(shape(p), []).append(p)
     return [(tuple(pts), *pads[key]) for key, pts in groups.items()]
 
 
-def _batches(todo: list[SweepPoint], grid: list[SweepPoint], built,
+def _batches(config: Config, todo: list[SweepPoint], grid: list[SweepPoint], built,
              batch: int) -> list[tuple[tuple, int, int]]:
     """The points to run cut into batches of at most ``batch``, each of one shape group
     (:func:`shape_groups`): [(points, m_pad, r_pad)]."""
     return [(pts[i:i + batch], m_pad, r_pad)
-            for pts, m_pad, r_pad in shape_groups(todo, grid, built)
+            for pts, m_pad, r_pad in shape_groups(config, todo, grid, built)
             for i in range(0, len(pts), batch)]
 
 
@@ -381,11 +381,11 @@ def run_sweep(config: Config, out_dir, *, progress: bool = True,
                 from jaxplan.sweep import ray as sweep_ray
 
                 bar.start()
-                sweep_ray.run_batches(config, _batches(todo, grid, built, batch), batch,
+                sweep_ray.run_batches(config, _batches(config, todo, grid, built, batch), batch,
                                       write, tally, address=address, progress=bar.update,
                                       say=say)
             else:
-                tally = _run_local(config, shape_groups(todo, grid, built), built, batch,
+                tally = _run_local(config, shape_groups(config, todo, grid, built), built, batch,
                                    write, bar, say)
         finally:
             bar.close()

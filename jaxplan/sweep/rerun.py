@@ -123,7 +123,7 @@ def rerun_row(sweep_dir, row: int, out=None, *, figures: bool = True,
         raise SweepError(f"{sweep_dir / 'sweep.csv'}: row {row} is not a point of the "
                          "directory's [sweep] grid (config.toml): cannot pad it as the sweep did")
     built = build_scenarios(config, grid)
-    ((_, m_pad, r_pad),) = shape_groups([point], grid, built)
+    ((_, m_pad, r_pad),) = shape_groups(config, [point], grid, built)
     say(f"rerun: row {row} of {sweep_dir / 'sweep.csv'}: q_obs = {point.q_obs!r}, q_lim = "
         f"{point.q_lim!r}, scenario {point.scenario}, seed {point.seed}")
     runner = BatchRunner(config, say)

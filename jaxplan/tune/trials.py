@@ -39,9 +39,9 @@ import numpy as np
 
 from jaxplan import env_positive_int, scenarios
 from jaxplan.config import Config, TuneConfig, build_scenario, load_config, tune_scenario_path
+from jaxplan.run_setup import planner_rows
 from jaxplan.scenarios import Scenario
 from jaxplan.sweep import BATCH_ENV, DEFAULT_BATCH, BatchRunner, SweepError, SweepPoint
-from jaxplan.world import static_rows
 
 __all__ = ["STAT_COLUMNS", "Run", "Runner", "TuneError", "runs_of", "runs_per_batch",
            "scenario_sources", "trial_stats"]
@@ -181,8 +181,8 @@ class Runner:
             sc = self.scenario(r.scenario, r.seed)
             groups.setdefault((sc.dim, sc.num_waypoints, sc.num_robots), []).append(i)
         for (_, _, m), idx in groups.items():
-            r_pad = max(static_rows(self.scenario(runs[i].scenario, runs[i].seed).world)
-                        .mask.shape[0] for i in idx)
+            r_pad = max(planner_rows(self.config, self.scenario(runs[i].scenario, runs[i].seed))
+                        for i in idx)
             points, weights = [], []
             for i in idx:
                 w = dict(runs[i].weights)
