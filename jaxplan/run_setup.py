@@ -148,6 +148,7 @@ def fleet_params(config: Config, scenario: Scenario, weights: Weights | None = N
                                         pc.stall_window_mutual_s),
             hold_mutual=mutual_hold(pc.deadlock, scenario.dim, pc.sidestep_hold_s,
                                     pc.sidestep_hold_mutual_s)),
+        keep_right=jnp.asarray(pc.keep_right_m) if pc.keep_right_m > 0 else None,
     )
 
 

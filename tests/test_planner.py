@@ -371,7 +371,8 @@ def test_a_silent_robot_is_held_where_it_can_have_braked_to():
     a = jnp.array([[0.5, -1.0, 0.0], [0.0, 0.0, 0.0]])
     goal = jnp.array([[9.0, 3.0, 1.0], [3.0, 0.0, 1.0]])
     lim = Limits(jnp.full(2, 2.0), jnp.full(2, 4.0), jnp.full(2, 12.0))
-    fp = SimpleNamespace(dt=jnp.asarray(0.125), prediction_weight=jnp.asarray(6.0), limits=lim)
+    fp = SimpleNamespace(dt=jnp.asarray(0.125), prediction_weight=jnp.asarray(6.0), limits=lim,
+                         keep_right=None)
     t1 = np.linspace(0.0, 0.125, 50)
     t2 = np.linspace(0.0, 3.0, 300)
 
@@ -396,3 +397,37 @@ def test_a_silent_robot_is_held_where_it_can_have_braked_to():
     assert d.max() > 0.2  # it moved a fair way
     assert d.max() <= float(floor[1, 0]) + 1e-9
     assert float(inflate[1, 0]) >= float(floor[1, 0])
+
+
+def test_keep_right_shifts_each_prediction_to_its_senders_right():
+    """[planner] keep_right_m: each observer's prediction of a sender is the closed form
+    shifted by the offset to the sender's right of its way to its goal (horizontal in
+    3-D; none for a vertical way), its radius grown by as much, so the shifted ball holds
+    the unshifted one."""
+    from types import SimpleNamespace
+
+    from jaxplan.nlp import Limits
+    from jaxplan.planner import fresh_views, view_predictions
+
+    p = jnp.array([[0.0, 0.0, 1.0], [4.0, 0.0, 1.0], [2.0, 3.0, 1.0]])
+    goal = jnp.array([[4.0, 0.0, 1.0], [0.0, 0.0, 1.0], [2.0, 3.0, 4.0]])  # 2: straight up
+    z = jnp.zeros_like(p)
+    lim = Limits(jnp.full(3, 2.0), jnp.full(3, 4.0), jnp.full(3, 12.0))
+    views = fresh_views(p, z, z, goal, z, jnp.zeros(3, bool))
+    t = jnp.linspace(0.0, 6.0, 25)[:, None, None]
+
+    def run(offset):  # one program each (None and an offset are different trees)
+        fp = SimpleNamespace(dt=jnp.asarray(0.125), prediction_weight=jnp.asarray(6.0),
+                             limits=lim, keep_right=offset)
+        preds, inflate, _ = jax.jit(lambda: view_predictions(fp, views))()
+        return np.asarray(preds.evaluate(t)), np.asarray(inflate)
+
+    (plain, inf0), (kept, inf1) = run(None), run(jnp.asarray(0.15))
+    shift = kept - plain  # (t, observer, sender, N)
+    # robot 0 flies +x: its right is -y; robot 1 flies -x: its right is +y
+    np.testing.assert_allclose(shift[:, :, 0], np.broadcast_to([0.0, -0.15, 0.0], (25, 3, 3)),
+                               atol=1e-12)
+    np.testing.assert_allclose(shift[:, :, 1], np.broadcast_to([0.0, 0.15, 0.0], (25, 3, 3)),
+                               atol=1e-12)
+    np.testing.assert_allclose(shift[:, :, 2], 0.0, atol=1e-12)  # a vertical way: no right
+    np.testing.assert_allclose(inf1 - inf0, 0.15, atol=1e-12)

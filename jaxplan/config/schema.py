@@ -88,6 +88,10 @@ DEFAULT_LIMITS = "soft"
 REGION_MODES = ("workspace", "fleet")
 DEFAULT_REGION = "workspace"
 DEFAULT_REGION_MARGIN_M = 1.0
+# m: each robot predicts every other this far to that other's right, its radius grown as
+# much (jaxplan.planner.views), so that robots meeting head on pass on their own right;
+# 0: off (the paper's prediction)
+DEFAULT_KEEP_RIGHT_M = 0.0
 # the planner: the paper's ("krishnan"), or the ORCA baseline: RVO2 through pyrvo ("orca",
 # jaxplan/baselines/orca.py), RVO2-3D in JAX ("orca3d", jaxplan/baselines/orca3d.py)
 PLANNER_METHODS = ("krishnan", "orca", "orca3d")
@@ -236,6 +240,9 @@ class PlannerConfig:
     and waypoints grown by region_margin_m (m) on every side (its faces are static rows
     of the planner's world only: jaxplan.run_setup.planner_world; the metrics' world is
     the workspace).
+    keep_right_m (m, >= 0): each robot predicts every other shifted this far to that
+    other's right of its way to its goal (horizontal in 3-D), its radius grown as much,
+    so that two robots meeting head on each pass on their own right (0: off).
     method "krishnan" | "orca" | "orca3d": the paper's planner, or the ORCA baseline:
     "orca" through RVO2 (pyrvo; jaxplan/baselines/orca.py; planar fleets, obstacles as
     polygons), "orca3d" RVO2-3D's algorithm in JAX (jaxplan/baselines/orca3d.py; planar
@@ -279,6 +286,7 @@ class PlannerConfig:
     limits: string(one_of(LIMIT_MODES)) = DEFAULT_LIMITS
     region: string(one_of(REGION_MODES)) = DEFAULT_REGION
     region_margin_m: number(ge=0.0, le=MAX_COORD) = DEFAULT_REGION_MARGIN_M
+    keep_right_m: number(ge=0.0, le=MAX_SAFETY_MARGIN_M) = DEFAULT_KEEP_RIGHT_M
     method: string(one_of(PLANNER_METHODS)) = DEFAULT_METHOD
     orca_neighbor_dist_m: number(gt=0.0, le=MAX_COORD) = DEFAULT_ORCA_NEIGHBOR_DIST_M
     orca_max_neighbors: integer(ge=1, le=MAX_ROBOTS) = DEFAULT_ORCA_MAX_NEIGHBORS

@@ -159,6 +159,10 @@ class FleetParams(NamedTuple):
     :func:`jaxplan.planner.nlps.select_static`), the checks
     (:func:`jaxplan.planner.choice.plan_violation`,
     :func:`jaxplan.planner.goals.clear_of_static`) use every row.
+    keep_right: () m, or None (off): each robot predicts every other shifted this far to
+    that other's right of its way to its goal, with its radius grown as much
+    (:func:`jaxplan.planner.views.view_predictions`), so that two robots meeting head on
+    each plan to pass on their own right.
     deadlock: stall detection and sidestep settings (:class:`DeadlockParams`); None:
     neither.
     """
@@ -174,6 +178,7 @@ class FleetParams(NamedTuple):
     settings: solve.SolverSettings
     static: StaticRows | None = None
     deadlock: DeadlockParams | None = None
+    keep_right: jax.Array | None = None
 
 
 class Views(NamedTuple):

@@ -138,4 +138,23 @@ def view_predictions(fp: FleetParams, views: Views,
     # view puts it (unmodelled acceleration for a prediction, any motion for a hold)
     grow = jnp.where(fresh, 0.5 * fp.limits.a_max * age**2, fp.limits.v_max * age)
     inflate = jnp.maximum(jnp.minimum(grow, MAX_INFLATION), floor)
+    if fp.keep_right is not None:
+        preds, inflate = _kept_right(preds, inflate, views, fp.keep_right)
     return Predictions(preds, inflate, floor)
+
+
+def _kept_right(preds: Trajectory, inflate, views: Views, offset):
+    """The predictions shifted ``offset`` m to each sender's right of the way from its
+    view's position to its goal (horizontal in 3-D: the way crossed with +z; none for a
+    way that is vertical or shorter than 1 cm), the radius grown by as much: the shifted
+    ball holds the unshifted one, and reaches 2 offset further on the sender's right."""
+    h = views.goal_p - views.p
+    if h.shape[-1] == 2:
+        right = jnp.stack([h[..., 1], -h[..., 0]], axis=-1)
+    else:
+        right = jnp.stack([h[..., 1], -h[..., 0], jnp.zeros_like(h[..., 0])], axis=-1)
+    n = jnp.linalg.norm(right, axis=-1, keepdims=True)
+    unit = jnp.where((n > 0.01) & jnp.isfinite(n), right / jnp.where(n > 0.01, n, 1.0), 0.0)
+    shift = offset * unit
+    coeffs = preds.coeffs.at[..., :, :, 0].add(shift[..., None, :])
+    return preds._replace(coeffs=coeffs), inflate + offset
