@@ -21,7 +21,7 @@ import pytest
 from jaxplan import config as C
 from jaxplan.config import ConfigError, build_scenario, parse_config
 from jaxplan.config.robots import RobotConfig
-from jaxplan.config.schema import MIN_REPLAN_HZ, Seed, field_type
+from jaxplan.config.schema import MAX_KEEP_RIGHT_M, MIN_REPLAN_HZ, Seed, field_type
 from jaxplan.config.sweep import LogRange, SeedRange
 from jaxplan.fields import MAX_COORD, Coordinate, PositiveLength, Range, range_of
 from jaxplan.scenarios import GENERATOR_PARAMS
@@ -42,14 +42,16 @@ TRACED = {
     "planner": ("replan_hz", "q_dynm", "q_obs", "q_lim", "k_t", "k_p", "max_iters", "tol",
                 "safety_margin_m", "stall_window_s", "stall_progress_m", "stall_near_m",
                 "sidestep_hold_s", "sidestep_step_m", "sidestep_angle_deg",
-                "sidestep_wait_3d_s", "stall_window_mutual_s", "sidestep_hold_mutual_s"),
+                "sidestep_wait_3d_s", "stall_window_mutual_s", "sidestep_hold_mutual_s",
+                "region_margin_m"),
     "limits": ("v_max", "a_max", "j_max"),
     "sim": ("duration_s", "goal_tolerance_m", "goal_speed_tolerance_mps"),
 }
 # keys that change the compiled program (or the simulator's), run in the slow tier
+# (keep_right_m: 0 is no shift, any other value one traced shift)
 STRUCTURAL = {
     "planner": ("degree", "segments", "n_samples", "max_neighbors", "max_static_rows",
-                "coast_samples", "solver_pool"),
+                "coast_samples", "solver_pool", "keep_right_m"),
     "sim": ("physics_hz", "control_hz"),
     "faults": ("message_loss", "latency_s", "noise_sigma_m", "frozen_robot", "frozen_at_s"),
 }
@@ -413,6 +415,7 @@ STRUCTURAL_RUNS = [
     ("planner", "max_neighbors", 1024, {}),
     ("planner", "solver_pool", 1024, {}),
     ("planner", "max_static_rows", 1, {"workspace": {"max": [MAX_COORD] * 3}}),
+    ("planner", "keep_right_m", MAX_KEEP_RIGHT_M, {}),
     ("faults", "latency_s", 10.0, {"faults": {"enabled": True}}),
     ("sim", "physics_hz", 10_000.0, {"sim": {"backend": "mjx", "control_hz": 100.0,
                                              "duration_s": 0.25}}),

@@ -92,6 +92,7 @@ DEFAULT_REGION_MARGIN_M = 1.0
 # much (jaxplan.planner.views), so that robots meeting head on pass on their own right;
 # 0: off (the paper's prediction)
 DEFAULT_KEEP_RIGHT_M = 0.0
+MAX_KEEP_RIGHT_M = 1.0
 # the planner: the paper's ("krishnan"), or the ORCA baseline: RVO2 through pyrvo ("orca",
 # jaxplan/baselines/orca.py), RVO2-3D in JAX ("orca3d", jaxplan/baselines/orca3d.py)
 PLANNER_METHODS = ("krishnan", "orca", "orca3d")
@@ -286,7 +287,7 @@ class PlannerConfig:
     limits: string(one_of(LIMIT_MODES)) = DEFAULT_LIMITS
     region: string(one_of(REGION_MODES)) = DEFAULT_REGION
     region_margin_m: number(ge=0.0, le=MAX_COORD) = DEFAULT_REGION_MARGIN_M
-    keep_right_m: number(ge=0.0, le=MAX_SAFETY_MARGIN_M) = DEFAULT_KEEP_RIGHT_M
+    keep_right_m: number(ge=0.0, le=MAX_KEEP_RIGHT_M) = DEFAULT_KEEP_RIGHT_M
     method: string(one_of(PLANNER_METHODS)) = DEFAULT_METHOD
     orca_neighbor_dist_m: number(gt=0.0, le=MAX_COORD) = DEFAULT_ORCA_NEIGHBOR_DIST_M
     orca_max_neighbors: integer(ge=1, le=MAX_ROBOTS) = DEFAULT_ORCA_MAX_NEIGHBORS
