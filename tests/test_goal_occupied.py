@@ -6,7 +6,6 @@ closed loops with programs of their own (tests/test_deadlock.py, test_guide.py,
 test_neighbors.py)."""
 
 import tomllib
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +16,7 @@ from jaxplan.config import parse_config
 from jaxplan.experiment import run
 from jaxplan.planner import GOAL_CLEARANCE, MAX_INFLATION
 from jaxplan.planner import free_goals as _free_goals
+from tests._fleets import frozen_random_box_20_seed_8
 
 R = 0.4  # planning radius of each robot in the unit tests
 # one program per shape, as in the planner's: op by op (eager) each new shape compiled
@@ -292,14 +292,7 @@ def test_frozen_random_box_20_seed_8_parks_beside_the_frozen_robot():
     # spheres (robot 0 held, robot 1's goal).  With the goal projection ending inside
     # one, every solve of robot 7 was infeasible and it flew its least violating plans
     # away (escape_m 40.6 m at 30 s, 12.7 m at 15 s).  It parks beside robot 0.
-    with open(Path(__file__).parents[1] / "experiments" / "benchmarks" / "random_box_20.toml",
-              "rb") as f:
-        doc = tomllib.load(f)
-    doc["seed"] = 8
-    doc["sim"]["duration_s"] = 15.0
-    doc["faults"] = {"enabled": True, "frozen_robot": 0, "frozen_at_s": 2.0,
-                     "frozen_mode": "silent"}
-    m = run(parse_config(doc, source="random_box_20.toml")).metrics
+    m = run(frozen_random_box_20_seed_8(duration_s=15.0)).metrics
     r7 = m["per_robot"][7]
     assert r7["escape_m"] == 0.0 and r7["parked"], r7
     assert m["collisions"] == 0

@@ -2,8 +2,6 @@
 scenario's with its workspace cut to the box of the starts and waypoints grown by
 region_margin_m; the metrics keep the scenario's world."""
 
-import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +9,7 @@ import pytest
 from jaxplan.config import ConfigError, build_scenario, parse_config
 from jaxplan.run_setup import fleet_params, planner_rows, planner_world, structures
 from jaxplan.world import PLANE, static_rows
+from tests._fleets import frozen_random_box_20_seed_8
 
 
 def _config(planner=None, workspace=None, obstacles=()):
@@ -84,17 +83,10 @@ def test_frozen_random_box_20_seed_8_stays_in_the_region():
     # random_box_20 seed 8 with robot 0 frozen: without the region, robot 9's accepted
     # plans lift it over the crowd, 0.9 m beyond the box escape_m measures against
     # (docs/SOLVER.md, "Hard limits")
-    with open(Path(__file__).parents[1] / "experiments" / "benchmarks" / "random_box_20.toml",
-              "rb") as f:
-        doc = tomllib.load(f)
-    doc["seed"] = 8
-    doc["planner"] = {**doc.get("planner", {}), "region": "fleet", "limits": "hard",
-                      "end_state": "auto"}
-    doc["faults"] = {"enabled": True, "frozen_robot": 0, "frozen_at_s": 2.0,
-                     "frozen_mode": "silent"}
     from jaxplan.experiment import run
 
-    m = run(parse_config(doc, source="random_box_20.toml")).metrics
+    m = run(frozen_random_box_20_seed_8(
+        {"region": "fleet", "limits": "hard", "end_state": "auto"})).metrics
     assert m["escape_m"] == 0.0, [r["escape_m"] for r in m["per_robot"]]
     assert m["collisions"] == 0 and m["workspace_violations"] == 0
     assert m["success"], m["per_robot"]
